@@ -1,0 +1,123 @@
+"""Typed configuration of one closed-loop scenario.
+
+A sweep file (see :mod:`hlip_jax.sweep`) is validated into these frozen dataclasses; the
+closed loop (:mod:`hlip_jax.rollout`) turns a list of them into batched scenario arrays.
+Every numeric field carries its unit, its allowed range and a one-line description in the
+field metadata (``spec``), which the sweep validator uses for its error messages.
+
+Conventions: world frame x forward, y left, z up; angles in degrees in configuration files
+(converted to radians in arrays); the two H-LIP planes are the world x and y axes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+INF = float("inf")
+
+
+def spec(default, lo=-INF, hi=INF, doc="", unit="", choices=None):
+    """A dataclass field with validation metadata (allowed closed range or choices)."""
+    meta = {"lo": lo, "hi": hi, "doc": doc, "unit": unit, "choices": choices}
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda: default, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class HLIPConfig:
+    """The planner's H-LIP (and the stepping law's reference model)."""
+    z0: float = spec(0.8, 0.3, 1.5, "nominal COM height", "m")
+    t_ssp: float = spec(0.3, 0.1, 1.0, "single-support duration", "s")
+    t_dsp: float = spec(0.1, 0.0, 0.5, "double-support duration", "s")
+    g: float = spec(9.81, 1.0, 30.0, "gravity", "m/s^2")
+
+
+@dataclass(frozen=True)
+class MPCConfig:
+    """Condensed MPC over the next ``horizon`` step sizes (both planes)."""
+    horizon: int = spec(6, 1, 30, "number of future steps planned (static: shapes)")
+    w_pos: float = spec(1.0, 0.0, 1e6, "weight on |c_k - r(t_k)|^2")
+    w_vel: float = spec(0.1, 0.0, 1e6, "weight on |v_k - rdot(t_k)|^2")
+    alpha: float = spec(0.01, 0.0, 1e6, "weight on step sizes |u_k|^2")
+    step_length_min: float = spec(-0.4, -2.0, 0.0, "minimum step length along the heading", "m")
+    step_length_max: float = spec(0.6, 0.0, 2.0, "maximum step length along the heading", "m")
+    step_width_min: float = spec(0.1, 0.0, 1.0, "minimum |step width| (leg clearance)", "m")
+    step_width_max: float = spec(0.5, 0.0, 2.0, "maximum |step width|", "m")
+    obstacle_weight: float = spec(1e3, 0.0, 1e9, "exact-penalty weight on obstacle slack", "1/m")
+    mode: str = spec("tube", doc="plan from the H-LIP's own state (tube) or the robot's",
+                     choices=("tube", "measured"))
+    qp_max_iter: int = spec(400, 10, 100000, "ADMM iteration cap per MPC solve")
+    qp_eps: float = spec(1e-4, 1e-10, 1e-1, "ADMM absolute/relative tolerance")
+
+
+@dataclass(frozen=True)
+class GainConfig:
+    """Stepping-law gain K in u = u_HLIP + K (x_robot - x_HLIP), per plane on [p, v]."""
+    type: str = spec("deadbeat", doc="gain design", choices=("deadbeat", "lqr"))
+    q_p: float = spec(1.0, 0.0, 1e6, "LQR weight on p")
+    q_v: float = spec(1.0, 0.0, 1e6, "LQR weight on v")
+    r: float = spec(1.0, 1e-9, 1e6, "LQR weight on the step size")
+
+
+@dataclass(frozen=True)
+class PushConfig:
+    """A horizontal force on the robot's COM (pelvis for Cassie)."""
+    time: float = spec(10.0, 0.0, 1e4, "start time", "s")
+    duration: float = spec(0.1, 0.0, 10.0, "duration", "s")
+    force: float = spec(200.0, 0.0, 5000.0, "magnitude", "N")
+    direction: float = spec(90.0, -360.0, 360.0, "direction in the world frame (0 = +x, 90 = +y)", "deg")
+
+
+@dataclass(frozen=True)
+class DisturbanceConfig:
+    """Disturbances of the H-LIP plant (pushes also act on Cassie)."""
+    noise_p: float = spec(0.0, 0.0, 1.0, "half-width of the uniform S2S noise on p (both planes)", "m")
+    noise_v: float = spec(0.0, 0.0, 5.0, "half-width of the uniform S2S noise on v (both planes)", "m/s")
+    step_error: float = spec(0.0, 0.0, 0.5, "half-width of the uniform step-placement error", "m")
+    z0: float = spec(0.0, 0.0, 1.5, "plant COM height, 0 = same as the planner's", "m")
+    t_ssp: float = spec(0.0, 0.0, 1.0, "plant SSP duration, 0 = same as the planner's", "s")
+    t_dsp: float = spec(0.0, 0.0, 0.5, "plant DSP duration, 0 = same as the planner's", "s")
+    mass: float = spec(33.0, 1.0, 500.0, "robot mass the pushes act on", "kg")
+    pushes: tuple = ()
+
+
+@dataclass(frozen=True)
+class ObstacleConfig:
+    """Keep-out disc for the COM."""
+    x: float = spec(0.0, -1e4, 1e4, "centre x", "m")
+    y: float = spec(0.0, -1e4, 1e4, "centre y", "m")
+    radius: float = spec(0.3, 0.0, 100.0, "keep-out radius", "m")
+
+
+@dataclass(frozen=True)
+class PathConfig:
+    """A reference path: a shape from :data:`hlip_jax.paths.SHAPES` and its parameters."""
+    shape: str = "circle"
+    params: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """Everything one closed-loop run needs.  ``swept`` records the grid values that made it."""
+    name: str = "scenario"
+    plant: str = spec("hlip", doc="what executes the steps", choices=("hlip", "cassie"))
+    seed: int = spec(0, 0, 2**31 - 1, "PRNG seed")
+    duration: float = spec(30.0, 0.5, 3600.0, "simulated time", "s")
+    hlip: HLIPConfig = field(default_factory=HLIPConfig)
+    mpc: MPCConfig = field(default_factory=MPCConfig)
+    gain: GainConfig = field(default_factory=GainConfig)
+    path: PathConfig = field(default_factory=PathConfig)
+    disturbance: DisturbanceConfig = field(default_factory=DisturbanceConfig)
+    obstacles: tuple = ()
+    swept: dict = field(default_factory=dict)
+
+
+def field_spec(cls, name) -> dict[str, Any]:
+    """Validation metadata of ``cls.name`` (empty for structural fields)."""
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            return dict(f.metadata)
+    raise KeyError(name)

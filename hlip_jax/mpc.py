@@ -1,0 +1,179 @@
+"""Condensed MPC on the 3D-H-LIP: the next N step sizes from the current state and a path preview.
+
+The 3D-H-LIP is two decoupled planar H-LIPs, one along world x and one along world y, each with
+the S2S state x = [c, p, v] (global COM [m], COM relative to the stance foot [m], velocity
+[m/s]) sampled at SSP⁻ and the step u [m]:  x_{j+1} = A x_j + B u_j  (:func:`hlip.s2s_matrices`).
+
+Planning from x_0 (time t_0, both planes) over steps j = 0..N-1, the states are eliminated
+(*condensed*): X = Φ x_0 + Γ U with Φ = [A; A²; …; A^N] and Γ_{ji} = A^{j-i} B (i ≤ j), so the
+decision vector is z = [u^x_0..u^x_{N-1}, u^y_0..u^y_{N-1}, s_1..s_O] (O obstacle slacks [m]) and
+
+    min  Σ_{j=1..N} w_pos |c_j − r(t_j)|² + w_vel |v_j − ṙ(t_j)|² + α Σ_j |u_j|² + ρ_obs Σ_o s_o
+    s.t. l_min ≤  u^x_j cos θ_j + u^y_j sin θ_j ≤ l_max                      (step length)
+         w_min ≤ σ_j (−u^x_j sin θ_j + u^y_j cos θ_j) ≤ w_max                (step width)
+         n_{jo}·(c_{j+1} − o) + s_o ≥ d_o,   s_o ≥ 0                          (obstacles)
+
+with t_j = t_0 + j T, T = T_SSP + T_DSP, θ_j the path heading at t_j, σ_j = +1 when the left
+foot is placed by step j (right stance) and −1 otherwise (stance alternates every step), and
+n_{jo} the unit normal of keep-out disc o at the previously planned position of c_{j+1}
+(the disc is linearised there and re-linearised every solve; the half-plane lies outside
+the disc, so satisfying it keeps the disc).  The slack enters the cost linearly (an exact
+penalty: for ρ_obs larger than the constraint's multiplier the slack is zero whenever the
+linearised problem is feasible) so the QP is always feasible; a small quadratic term keeps
+P positive definite.  Unused obstacle slots are disabled by infinite bounds.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from hlip_jax import qp
+
+BIG = 1e20  # OSQP's convention: |bound| ≥ 1e20 is infinite
+
+
+class MPCParams(NamedTuple):
+    """Per-scenario MPC data (all traced; a sweep varies them without recompiling)."""
+    A: jax.Array            # (3, 3) S2S matrix
+    B: jax.Array            # (3,)
+    w_pos: jax.Array        # weight on position error [1/m²]
+    w_vel: jax.Array        # weight on velocity error [s²/m²]
+    alpha: jax.Array        # weight on step size [1/m²]
+    length_min: jax.Array   # step length limits along the heading [m]
+    length_max: jax.Array
+    width_min: jax.Array    # |step width| limits [m]
+    width_max: jax.Array
+    obstacle_weight: jax.Array  # exact-penalty weight on slack [1/m]
+    obstacles: jax.Array    # (O, 3) rows (x, y, radius) [m]
+    obstacle_active: jax.Array  # (O,) bool
+
+
+class Preview(NamedTuple):
+    """Path preview at the N planned instants t_1..t_N (positions and velocities) and the
+    headings at the step instants t_0..t_{N-1}."""
+    pos: jax.Array      # (N, 2) [m]
+    vel: jax.Array      # (N, 2) [m/s]
+    heading: jax.Array  # (N,)   [rad]
+
+
+class Plan(NamedTuple):
+    u: jax.Array          # (N, 2) planned steps, world x / y [m]
+    states: jax.Array     # (N, 2, 3) predicted states x_1..x_N per plane
+    slack: jax.Array      # max obstacle slack [m]
+    z: jax.Array          # raw QP primal (for warm start)
+    y: jax.Array          # raw QP dual
+    status: jax.Array
+    iterations: jax.Array
+
+
+def prediction_matrices(A, B, N: int):
+    """Φ (N, 3, 3) and Γ (N, 3, N) with x_j = Φ_{j-1} x_0 + Γ_{j-1} U for j = 1..N."""
+    powers = [jnp.eye(A.shape[0], dtype=A.dtype)]
+    for _ in range(N):
+        powers.append(A @ powers[-1])
+    Phi = jnp.stack(powers[1:])                       # A^1..A^N
+    AB = jnp.stack([P @ B for P in powers[:N]])      # A^0 B .. A^{N-1} B, (N, 3)
+    j = jnp.arange(N)[:, None]
+    i = jnp.arange(N)[None, :]
+    lag = jnp.clip(j - i, 0, N - 1)
+    Gamma = jnp.where((i <= j)[:, :, None], AB[lag], 0.0)  # (N, N, 3)
+    return Phi, jnp.transpose(Gamma, (0, 2, 1))
+
+
+def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c):
+    """The condensed QP (P, q, A, l, u) in the decision vector z described in the module doc.
+
+    Args:
+      x0: (2, 3) current state per plane (x plane, y plane).
+      stance0: stance foot at t_0 (0 left, 1 right); step 0 is placed by the other foot.
+      prev_c: (N, 2) previously planned COM positions c_1..c_N (obstacle linearisation points).
+    """
+    N = preview.pos.shape[0]
+    O = params.obstacles.shape[0]
+    dt = x0.dtype
+    Phi, Gam = prediction_matrices(params.A, params.B, N)
+    free = jnp.einsum("jab,pb->pja", Phi, x0)                     # (2, N, 3) free response
+    Gc, Gv = Gam[:, 0, :], Gam[:, 2, :]                            # (N, N) position / velocity rows
+    n = 2 * N + O
+
+    # cost ½ zᵀ P z + qᵀ z  (factor 2 from the squares)
+    Hp = 2.0 * (params.w_pos * Gc.T @ Gc + params.w_vel * Gv.T @ Gv + params.alpha * jnp.eye(N, dtype=dt))
+    P = jnp.zeros((n, n), dt)
+    P = P.at[:N, :N].set(Hp).at[N:2 * N, N:2 * N].set(Hp)
+    P = P.at[2 * N:, 2 * N:].set(1e-6 * jnp.eye(O, dtype=dt))
+    ref_err_c = free[:, :, 0] - preview.pos.T                      # (2, N)
+    ref_err_v = free[:, :, 2] - preview.vel.T
+    qx = 2.0 * (params.w_pos * Gc.T @ ref_err_c.T + params.w_vel * Gv.T @ ref_err_v.T)  # (N, 2)
+    q = jnp.concatenate([qx[:, 0], qx[:, 1], params.obstacle_weight * jnp.ones((O,), dt)])
+
+    # step length / width rows, rotated into the heading θ_j
+    cth, sth = jnp.cos(preview.heading), jnp.sin(preview.heading)
+    eye = jnp.eye(N, dtype=dt)
+    zO = jnp.zeros((N, O), dt)
+    A_len = jnp.concatenate([eye * cth[:, None], eye * sth[:, None], zO], axis=1)
+    A_wid = jnp.concatenate([-eye * sth[:, None], eye * cth[:, None], zO], axis=1)
+    # σ_j = +1 when step j places the left foot, i.e. stance_j = right; stance alternates
+    stance = (stance0 + jnp.arange(N)) % 2
+    sigma = jnp.where(stance == 1, 1.0, -1.0).astype(dt)
+    ones = jnp.ones((N,), dt)
+    l_len, u_len = params.length_min * ones, params.length_max * ones
+    l_wid = jnp.where(sigma > 0, params.width_min, -params.width_max) * ones
+    u_wid = jnp.where(sigma > 0, params.width_max, -params.width_min) * ones
+
+    # obstacles: n_{jo}·(c_{j+1} − o) + s_o ≥ r_o, c_{j+1} = free_c + Gc U (per plane)
+    centre = params.obstacles[:, :2]                                # (O, 2)
+    diff = prev_c[:, None, :] - centre[None, :, :]                  # (N, O, 2)
+    dist = jnp.linalg.norm(diff, axis=-1, keepdims=True)
+    normal = jnp.where(dist > 1e-9, diff / jnp.maximum(dist, 1e-9), jnp.array([1.0, 0.0], dt))
+    rows_x = normal[:, :, 0:1] * Gc[:, None, :]                     # (N, O, N)
+    rows_y = normal[:, :, 1:2] * Gc[:, None, :]
+    rows_s = jnp.broadcast_to(jnp.eye(O, dtype=dt), (N, O, O))
+    A_obs = jnp.concatenate([rows_x, rows_y, rows_s], axis=2).reshape(N * O, n)
+    free_c = free[:, :, 0].T                                         # (N, 2)
+    lhs0 = jnp.einsum("jod,jod->jo", normal, free_c[:, None, :] - centre[None, :, :])
+    l_obs = (params.obstacles[None, :, 2] - lhs0)
+    l_obs = jnp.where(params.obstacle_active[None, :], l_obs, -BIG).reshape(N * O)
+    u_obs = jnp.full((N * O,), BIG, dt)
+    A_slack = jnp.concatenate([jnp.zeros((O, 2 * N), dt), jnp.eye(O, dtype=dt)], axis=1)
+    l_slack = jnp.zeros((O,), dt)
+    u_slack = jnp.where(params.obstacle_active, BIG, 0.0).astype(dt)
+
+    Aq = jnp.concatenate([A_len, A_wid, A_obs, A_slack], axis=0)
+    lq = jnp.concatenate([l_len, l_wid, l_obs, l_slack])
+    uq = jnp.concatenate([u_len, u_wid, u_obs, u_slack])
+    return P, q, Aq, lq, uq
+
+
+def predict(params: MPCParams, x0, u):
+    """Predicted states x_1..x_N (N, 2, 3) from x0 (2, 3) and steps u (N, 2)."""
+    Phi, Gam = prediction_matrices(params.A, params.B, u.shape[0])
+    return (jnp.einsum("jab,pb->jpa", Phi, x0) + jnp.einsum("jan,np->jpa", Gam, u))
+
+
+def solve(params: MPCParams, x0, preview: Preview, stance0, prev_c, settings: qp.Settings,
+          warm_start=None) -> Plan:
+    """Build and solve the condensed MPC QP with :func:`hlip_jax.qp.solve`."""
+    N = preview.pos.shape[0]
+    P, q, Aq, lq, uq = build_qp(params, x0, preview, stance0, prev_c)
+    sol = qp.solve(P, q, Aq, lq, uq, settings=settings, warm_start=warm_start)
+    u = jnp.stack([sol.x[:N], sol.x[N:2 * N]], axis=-1)
+    slack = jnp.max(sol.x[2 * N:], initial=0.0)
+    return Plan(u=u, states=predict(params, x0, u), slack=slack, z=sol.x, y=sol.y,
+                status=sol.status, iterations=sol.iterations)
+
+
+def shift_warm_start(plan: Plan, N: int, O: int):
+    """Receding-horizon warm start: drop the executed step, repeat the last one."""
+    def shift(v):
+        return jnp.concatenate([v[1:], v[-1:]])
+    z = plan.z
+    zx = jnp.concatenate([shift(z[:N]), shift(z[N:2 * N]), z[2 * N:]])
+    y = plan.y
+    ylen, ywid = y[:N], y[N:2 * N]
+    yobs = y[2 * N:2 * N + N * O].reshape(N, O)
+    yobs = jnp.concatenate([yobs[1:], yobs[-1:]]).reshape(N * O)
+    ys = jnp.concatenate([shift(ylen), shift(ywid), yobs, y[2 * N + N * O:]])
+    return zx, ys
