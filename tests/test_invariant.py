@@ -1,0 +1,350 @@
+"""Tests for hlip_jax.invariant: W estimation, mRPI sets, zonotope facets, coverage."""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import itertools
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+
+from hlip_jax import hlip
+from hlip_jax import invariant as inv
+
+Z0, TS, TD = 0.8, 0.3, 0.1
+
+
+def _deadbeat2():
+    A, B = hlip.s2s_matrices(Z0, TS, TD, with_position=False)
+    K = hlip.deadbeat_gain(Z0, TS, TD)
+    return np.asarray(A + jnp.outer(B, K))
+
+
+def _acl3(kind):
+    A, B = hlip.s2s_matrices(Z0, TS, TD, with_position=True)
+    if kind == "deadbeat":
+        K = hlip.deadbeat_gain(Z0, TS, TD, with_position=True)
+    else:
+        K = hlip.lqr_gain(A, B, jnp.eye(3), jnp.array(1.0))
+    return np.asarray(A + jnp.outer(B, K))
+
+
+def _lqr2():
+    A, B = hlip.s2s_matrices(Z0, TS, TD, with_position=False)
+    K = hlip.lqr_gain(A, B, jnp.eye(2), jnp.array(0.5))
+    return np.asarray(A + jnp.outer(B, K))
+
+
+def _sphere(n, k, seed=0):
+    d = np.random.default_rng(seed).normal(size=(k, n))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+# ------------------------------------------------------------------ analytic mRPI
+
+
+@pytest.mark.parametrize("a", [0.5, -0.5, 0.9])
+def test_scalar_box_matches_closed_form(a):
+    # e⁺ = a e + w, w ∈ [lo, hi]:  F_∞ = [c/(1−a) − r/(1−|a|), c/(1−a) + r/(1−|a|)]
+    # (c, r centre and half-width of W).  Raković: F_s ⊆ F_∞ ⊆ F_s/(1−α), outer within ε.
+    lo, hi, eps = -1.0, 2.0, 1e-6
+    E = inv.mrpi(np.array([[a]]), inv.Box(jnp.array([lo]), jnp.array([hi])), eps=eps)
+    c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    exact = np.array([c / (1 - a) + r / (1 - abs(a)), -(c / (1 - a) - r / (1 - abs(a)))])
+    d = np.array([[1.0], [-1.0]])
+    h_in = np.asarray(E.inner.support(d))
+    h_out = np.asarray(E.outer.support(d))
+    # 1e-12: float64 summation error over s ≤ ~150 terms of size ≤ 3
+    assert np.all(h_in <= exact + 1e-12)
+    assert np.all(h_out >= exact - 1e-12)
+    assert np.all(h_out - exact <= eps)
+    assert float(E.volume()) == pytest.approx(2 * r / (1 - abs(a)), abs=2 * eps)
+
+
+def test_diagonal_3d_box_matches_closed_form():
+    # diagonal A_cl decouples the axes: half-widths r_j/(1−|a_j|), centre c_j/(1−a_j).
+    a = np.array([0.5, -0.3, 0.8])
+    lo, hi = np.array([-0.01, -0.02, -0.05]), np.array([0.03, 0.02, 0.04])
+    eps = 1e-7
+    E = inv.mrpi(np.diag(a), inv.Box(jnp.asarray(lo), jnp.asarray(hi)), eps=eps)
+    c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    up, dn = c / (1 - a) + r / (1 - np.abs(a)), c / (1 - a) - r / (1 - np.abs(a))
+    d = np.concatenate([np.eye(3), -np.eye(3)])
+    exact = np.concatenate([up, -dn])
+    h_in, h_out = np.asarray(E.inner.support(d)), np.asarray(E.outer.support(d))
+    assert np.all(h_in <= exact + 1e-14)  # 1e-14: float64 sums of ~100 terms of size 1e-2
+    assert np.all(h_out >= exact - 1e-14)
+    assert np.all(h_out - exact <= eps)
+    # a diagonal A keeps each generator on its axis: E is a box, volume Π 2r/(1−|a|)
+    assert float(E.volume()) == pytest.approx(np.prod(up - dn), rel=1e-4)
+    assert not E.exact and 0 < E.alpha < 1
+
+
+# ------------------------------------------------------------------ nilpotent (deadbeat)
+
+
+def test_deadbeat_finite_sum_is_exact():
+    Acl = _deadbeat2()
+    # (A+BK)² = 0 up to rounding (DESIGN.md); 1e-12 relative to |A_cl| ~ 1
+    assert np.abs(Acl @ Acl).max() < 1e-12
+    W = inv.Box(jnp.array([-0.01, -0.04]), jnp.array([0.02, 0.05]))
+    E = inv.mrpi(Acl, W, eps=1e-9)
+    assert E.exact and E.alpha == 0.0 and E.s == 2
+    D = _sphere(2, 300)
+    # independent support of W ⊕ A W (off-centre W: F_∞ = W ⊕ A W exactly)
+    hW = lambda d: np.asarray(W.support(d))
+    ref = hW(D) + hW(D @ Acl)
+    np.testing.assert_allclose(np.asarray(E.support(D)), ref, atol=1e-14)
+    np.testing.assert_allclose(np.asarray(E.inner.support(D)), ref, atol=1e-14)
+    Wc = inv.Box(jnp.array([-0.015, -0.045]), jnp.array([0.015, 0.045]))  # centred W
+    for s in range(2, 7):  # every truncation beyond the nilpotency index equals F_2
+        Fs = inv.truncated_sum(Acl, Wc, s)
+        np.testing.assert_allclose(np.asarray(Fs.support(D)), np.asarray(E_ref_support(Acl, Wc, D)),
+                                   atol=1e-14)  # 1e-14: terms A^i, i ≥ 2, are ~1e-17
+
+
+def E_ref_support(Acl, W, D):
+    return np.asarray(W.support(D)) + np.asarray(W.support(D @ Acl))
+
+
+def test_deadbeat_3state_exact_at_index_3():
+    Acl = _acl3("deadbeat")
+    W = inv.Box(-jnp.array([0.01, 0.01, 0.05]), jnp.array([0.012, 0.01, 0.04]))
+    E = inv.mrpi(Acl, W)
+    assert E.exact and E.s == 3
+    D = _sphere(3, 300)
+    ref = sum(np.asarray(W.support(D @ np.linalg.matrix_power(Acl, i))) for i in range(3))
+    # 1e-12: Ackermann gain built in float64 leaves A_cl³ ~1e-15
+    np.testing.assert_allclose(np.asarray(E.support(D)), ref, atol=1e-12)
+
+
+# ------------------------------------------------------------------ zonotope facets vs Qhull
+
+
+def _brute_zonotope(c, G):
+    corners = np.array(list(itertools.product([-1.0, 1.0], repeat=len(G))))
+    return c + corners @ G
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_zonotope_facets_match_convex_hull(n):
+    rng = np.random.default_rng(n)
+    G = rng.normal(size=(7, n)) * 0.1
+    G = np.concatenate([G, 2 * G[:1], -0.5 * G[1:2], np.zeros((1, n))])  # parallel + zero
+    c = rng.normal(size=n)
+    z = inv.zonotope(c, G)
+    hull = ConvexHull(_brute_zonotope(c, G))
+    lo, hi = hull.points.min(0), hull.points.max(0)
+    P = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), size=(100_000, n))
+    signed = np.max(P @ hull.equations[:, :-1].T + hull.equations[:, -1], axis=1)
+    ref = signed <= 0
+    # boundary band: |signed distance| ≤ 1e-9 × set size excluded (rounding decides there)
+    away = np.abs(signed) > 1e-9 * np.max(hi - lo)
+    got = np.asarray(z.contains(P, tol=0.0))
+    assert away.sum() > 99_000 and 0.05 < ref.mean() < 0.95
+    assert np.array_equal(got[away], ref[away])
+    # exact volume 2ⁿ Σ|det| against Qhull (rel 1e-9: Qhull's float64 facet sums)
+    assert float(z.volume()) == pytest.approx(hull.volume, rel=1e-9)
+    # every facet of the H-rep touches the brute-force vertices (no redundant offsets)
+    N, b = inv.zonotope_halfspaces(z)
+    touch = np.max(hull.points @ N.T, axis=0)
+    np.testing.assert_allclose(touch, b, atol=1e-12)
+
+
+def test_flat_zonotope_in_3d():
+    # generators in the plane z = 0 → normals ±e_z plus the in-plane facets
+    G = np.array([[0.1, 0.0, 0.0], [0.05, 0.05, 0.0], [0.0, 0.08, 0.0]])
+    z = inv.zonotope(np.zeros(3), G)
+    assert np.asarray(z.contains(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1e-3], [0.5, 0, 0]]))).tolist() \
+        == [True, False, False]
+    assert float(z.volume()) == 0.0
+
+
+# ------------------------------------------------------------------ invariance
+
+
+@pytest.mark.parametrize("acl", ["deadbeat2", "lqr2", "deadbeat3", "lqr3"])
+def test_outer_set_is_robust_invariant(acl):
+    A = {"deadbeat2": _deadbeat2, "lqr2": _lqr2,
+         "deadbeat3": lambda: _acl3("deadbeat"), "lqr3": lambda: _acl3("lqr")}[acl]()
+    n = A.shape[0]
+    lo = -np.array([0.01, 0.03, 0.05])[:n]
+    hi = np.array([0.02, 0.03, 0.04])[:n]
+    W = inv.Box(jnp.asarray(lo), jnp.asarray(hi))
+    E = inv.mrpi(A, W, eps=1e-5)
+    D = _sphere(n, 2000, seed=1)
+    # A E ⊕ W ⊆ E  ⇔  h_E(Aᵀd) + h_W(d) ≤ h_E(d) for all d (support functions)
+    lhs = np.asarray(E.support(D @ A)) + np.asarray(W.support(D))
+    rhs = np.asarray(E.support(D))
+    assert np.all(lhs <= rhs + 1e-12 * np.abs(rhs).max())  # rounding on sums of ~100 terms
+    # inner ⊆ outer and outer − inner ≤ ε/… in the coordinate directions (Raković bound)
+    ax = np.concatenate([np.eye(n), -np.eye(n)])
+    gap = np.asarray(E.outer.support(ax)) - np.asarray(E.inner.support(ax))
+    assert np.all(gap >= -1e-15) and np.all(gap <= E.eps)
+
+
+def test_hull_w_template_outer():
+    Acl = _lqr2()
+    rng = np.random.default_rng(3)
+    W = inv.Hull(rng.uniform(-1, 1, size=(300, 2)) * [0.02, 0.05] + [0.005, 0.0])
+    E = inv.mrpi(Acl, W, eps=1e-5)
+    assert isinstance(E.outer, inv.TemplatePolytope) and E.outer.is_outer_approximation
+    D = np.asarray(E.outer.normals)
+    # template offsets = h_{F_s}(D)/(1−α) about the centre; inner is the exact F_s
+    c = np.asarray(E.outer.center)
+    h_in = np.asarray(E.inner.support(D)) - D @ c
+    np.testing.assert_allclose(np.asarray(E.outer.offsets) - D @ c, h_in / (1 - E.alpha),
+                               rtol=1e-9)
+    # the inner F_s support equals the sum of supports of A^i W₀ (independent of the hull sum)
+    Wc = W.canonical()
+    V0 = np.asarray(Wc.vertices) - np.asarray(Wc.vertices).mean(0)
+    ref = sum(np.max((D @ np.linalg.matrix_power(Acl, i)) @ V0.T, axis=1) for i in range(E.s))
+    np.testing.assert_allclose(h_in, ref, atol=1e-12)
+    # ... and the exact mRPI lies inside: long simulated trajectories stay in the outer set
+    w = np.asarray(Wc.vertices)[rng.integers(0, len(Wc.vertices), 4000)]
+    e = np.zeros(2)
+    es = []
+    for wk in w:
+        e = Acl @ e + wk
+        es.append(e)
+    assert bool(np.all(np.asarray(E.contains(np.array(es)))))
+
+
+# ------------------------------------------------------------------ coverage
+
+
+def _simulate(Acl, lo, hi, n_scen, n_steps, seed):
+    rng = np.random.default_rng(seed)
+    n = len(lo)
+    w = rng.uniform(lo, hi, size=(n_scen, n_steps, n))
+    e = np.zeros((n_scen, n_steps, n))
+    for k in range(1, n_steps):
+        e[:, k] = e[:, k - 1] @ Acl.T + w[:, k - 1]
+    return w, e
+
+
+@pytest.mark.parametrize("acl", ["deadbeat2", "lqr3"])
+def test_coverage_is_one_in_sample(acl):
+    Acl = _deadbeat2() if acl == "deadbeat2" else _acl3("lqr")
+    n = Acl.shape[0]
+    lo, hi = -np.array([0.01, 0.02, 0.04])[:n], np.array([0.015, 0.02, 0.05])[:n]
+    w, e = _simulate(Acl, lo, hi, 20, 60, seed=5)
+    W = inv.estimate_w(w[:, :-1].reshape(-1, n))
+    E = inv.mrpi(Acl, W)
+    cov = inv.coverage(E, e)
+    assert cov.outer == 1.0 and cov.n == e.shape[0] * e.shape[1]
+    if E.exact:
+        assert cov.inner == 1.0
+    if n == 2:  # hull W from the same samples: every e_k = w_{k−1} + A w_{k−2} lies in E
+        Eh = inv.mrpi(Acl, inv.estimate_w(w[:, :-1].reshape(-1, n), method="hull"))
+        assert inv.coverage(Eh, e).outer == 1.0
+
+
+def test_contains_jits_and_vmaps():
+    E = inv.mrpi(_acl3("lqr"), inv.Box(-jnp.ones(3) * 0.01, jnp.ones(3) * 0.02))
+    P = np.random.default_rng(0).normal(size=(4, 50, 3)) * 0.03
+    ref = np.asarray(E.contains(P))
+    f = jax.jit(lambda S, x: S.contains(x))
+    assert np.array_equal(np.asarray(f(E.outer, P)), ref)
+    g = jax.vmap(lambda x: E.outer.contains(x))
+    assert np.array_equal(np.asarray(g(jnp.asarray(P))), ref)
+    b = inv.Box(jnp.zeros(3), jnp.ones(3))
+    assert np.asarray(jax.jit(lambda S, x: S.contains(x))(b, np.array([[0.5, 0.5, 0.5], [2, 0, 0]]))).tolist() \
+        == [True, False]
+
+
+# ------------------------------------------------------------------ logs, analyse, end to end
+
+
+def _log(n_scen, n_steps, seed, lo, hi):
+    """Linear closed loop around the zero H-LIP orbit: x_HLIP = 0, u_HLIP = 0, so e = x and
+    u_exec = K x (per plane; sagittal deadbeat, lateral LQR, 3-state [c, p, v])."""
+    A, B = hlip.s2s_matrices(Z0, TS, TD, with_position=True)
+    A, B = np.asarray(A), np.asarray(B)
+    K = np.stack([np.asarray(hlip.deadbeat_gain(Z0, TS, TD, with_position=True)),
+                  np.asarray(hlip.lqr_gain(jnp.asarray(A), jnp.asarray(B), jnp.eye(3),
+                                           jnp.array(1.0)))])
+    rng = np.random.default_rng(seed)
+    w = rng.uniform(lo, hi, size=(n_scen, n_steps, 2, 3))
+    x = np.zeros((n_scen, n_steps, 2, 3))
+    u = np.zeros((n_scen, n_steps, 2))
+    for k in range(n_steps):
+        u[:, k] = np.einsum("pj,spj->sp", K, x[:, k])
+        if k + 1 < n_steps:
+            x[:, k + 1] = x[:, k] @ A.T + B * u[:, k, :, None] + w[:, k]
+    return A, B, K, x, u, w
+
+
+def test_disturbances_recover_w_and_mask():
+    lo, hi = np.array([-0.01, -0.01, -0.05]), np.array([0.01, 0.02, 0.05])
+    A, B, K, x, u, w = _log(3, 12, 0, lo, hi)
+    valid = np.ones((3, 12), bool)
+    valid[1, 7] = False  # failure at step 7 of scenario 1: everything after is dropped
+    d = inv.disturbances(x, u, valid, A, B, transient=2)
+    # w recovered to rounding (1e-14: states ~0.1, products with |A| ~ 3)
+    np.testing.assert_allclose(np.asarray(d.w), w[:, :-1], atol=1e-14)
+    m = np.asarray(d.mask)
+    assert m.shape == (3, 11)
+    assert not m[:, :2].any() and m[0, 2:].all()
+    assert m[1, 2:6].all() and not m[1, 6:].any()
+    d2 = inv.disturbances(x, u, valid, A[1:, 1:], B[1:])  # [p, v] subsystem
+    np.testing.assert_allclose(np.asarray(d2.w), w[:, :-1, :, 1:], atol=1e-14)
+    with pytest.raises(ValueError, match="u_exec"):
+        inv.disturbances(x, u[..., :1], valid, A, B)
+    with pytest.raises(ValueError, match="A:"):
+        inv.disturbances(x, u, valid, np.eye(4), B)
+
+
+def test_end_to_end_w_converges_and_heldout_coverage():
+    lo, hi = np.array([-0.01, -0.01, -0.05]), np.array([0.01, 0.02, 0.05])
+    err = []
+    for n_scen in (2, 20, 200):
+        A, B, K, x, u, w = _log(n_scen, 25, 11, lo, hi)
+        d = inv.disturbances(x, u, np.ones(x.shape[:2], bool), A, B)
+        W = inv.estimate_w(np.asarray(d.w)[..., 0, :], np.asarray(d.mask))
+        err.append(max(np.abs(np.asarray(W.lo) - lo).max(), np.abs(np.asarray(W.hi) - hi).max()))
+    # min/max of N uniform samples: gap ~ width/N → shrinks by ~10× per 10× data
+    assert err[0] > err[1] > err[2] and err[2] < 1e-3
+    res = inv.analyse(x, u, np.ones(x.shape[:2], bool), x, A, B, K, transient=0,
+                      holdout_fraction=0.25, seed=4)
+    assert len(res.test) == 50 and len(np.intersect1d(res.test, res.train)) == 0
+    for p in res.planes:
+        assert p.coverage.outer == 1.0
+        assert p.heldout.outer >= 0.99
+        assert p.volume > 0 and p.s >= 1
+    assert res.planes[0].E.exact  # sagittal deadbeat
+    assert res.combined.outer == 1.0 and res.combined_heldout.outer >= 0.99
+    # [p, v] analysis of the same log (A 2×2 drops c); quantile box reports fewer inside
+    A2, B2 = A[1:, 1:], B[1:]
+    K2 = np.stack([np.asarray(hlip.deadbeat_gain(Z0, TS, TD)),
+                   np.asarray(hlip.lqr_gain(jnp.asarray(A2), jnp.asarray(B2), jnp.eye(2),
+                                            jnp.array(1.0)))])
+    r2 = inv.analyse(x, u, np.ones(x.shape[:2], bool), x, A2, B2, K2, W_estimator="quantile",
+                     quantile=0.95)
+    assert r2.planes[0].E.dim == 2 and r2.planes[0].coverage.outer < 1.0
+
+
+def test_bad_inputs_name_the_field():
+    with pytest.raises(ValueError, match="Schur"):
+        inv.mrpi(np.array([[1.1]]), inv.Box(jnp.array([-1.0]), jnp.array([1.0])))
+    with pytest.raises(ValueError, match="hi > lo"):
+        inv.mrpi(np.array([[0.5]]), inv.Box(jnp.array([1.0]), jnp.array([1.0])))
+    with pytest.raises(ValueError, match="quantile"):
+        inv.estimate_w(np.zeros((5, 2)), method="quantile", quantile=0.2)
+    with pytest.raises(ValueError, match="method"):
+        inv.estimate_w(np.zeros((5, 2)), method="ellipse")
+
+
+def test_figures(tmp_path):
+    import matplotlib
+    matplotlib.use("Agg")
+    E3 = inv.mrpi(_acl3("lqr"), inv.Box(-jnp.ones(3) * 0.01, jnp.ones(3) * 0.02))
+    E2 = inv.mrpi(_deadbeat2(), inv.Box(-jnp.ones(2) * 0.01, jnp.ones(2) * 0.02))
+    rng = np.random.default_rng(0)
+    fig = inv.plot_planes((E3, E2), (rng.normal(size=(200, 3)) * 0.03,
+                                     rng.normal(size=(200, 2)) * 0.02), title="E")
+    fig.savefig(tmp_path / "e.png")
+    assert (tmp_path / "e.png").stat().st_size > 1000
