@@ -15,7 +15,8 @@ How a path is made (plain numpy at configuration time):
   start tangent) it *turns in place* at the constant rate ``turn_rate`` [rad/s], the shorter
   way round (a half turn goes the way the shape turns).
 * Along a move the arc length follows a speed profile s(τ) (see :func:`speed_profile`):
-  ``"trapezoid"`` — accelerate at ``accel`` to ``peak_speed``, cruise, decelerate at ``accel``;
+  ``"trapezoid"`` — accelerate at ``accel`` to ``peak_speed``, cruise, decelerate at
+  ``accel``;
   if L < peak_speed²/accel the peak cannot be reached and the profile degrades to a triangle
   with peak √(accel·L).  ``"triangle"`` — accelerate to ``peak_speed`` at mid length and
   decelerate, i.e. acceleration peak_speed²/L; if that exceeds ``accel`` the peak is lowered
@@ -396,7 +397,9 @@ _DIRECTION = ParamSpec("ccw", doc="sense of rotation (ccw: turning left)", kind=
                        choices=("ccw", "cw"))
 
 
-_MOTION_STOPS = {**_MOTION, "profile": dataclasses.replace(_MOTION["profile"], default="triangle")}
+# shapes that stop at corners default to a triangle profile per side
+_MOTION_STOPS = {**_MOTION,
+                 "profile": dataclasses.replace(_MOTION["profile"], default="triangle")}
 
 
 def _laps(doc="number of laps"):
@@ -475,11 +478,13 @@ def _check(shape, name, value, spec: ParamSpec):
         if np.any(seg < 1e-6):
             i = int(np.argmax(seg < 1e-6))
             _fail(shape, name, value, spec,
-                  f"waypoints {i} and {i + 1} coincide; allowed: consecutive points ≥ 1e-6 m apart")
+                  f"waypoints {i} and {i + 1} coincide; allowed: consecutive points "
+                  "≥ 1e-6 m apart")
         return pts
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer,
-                                                                      np.floating)):
-        _fail(shape, name, value, spec)
+    if (isinstance(value, (bool, np.bool_)) or isinstance(value, str) or np.ndim(value) != 0
+            or not np.issubdtype(np.asarray(value).dtype, np.number)
+            or np.iscomplexobj(value)):
+        _fail(shape, name, value, spec)  # numbers only (Python, numpy or 0-d JAX scalars)
     if not math.isfinite(float(value)):
         _fail(shape, name, value, spec)
     if spec.kind == "int":
@@ -559,8 +564,8 @@ def _square(p):
     for _ in range(p["laps"]):
         for i, (cx, cy) in enumerate(corners):
             cy = sg * cy
-            moves.append(_Placed(_Line(L), (p["x0"] + c * cx - s * cy, p["y0"] + s * cx + c * cy),
-                                 p["rotation"] + sg * i * 0.5 * math.pi))
+            start = (p["x0"] + c * cx - s * cy, p["y0"] + s * cx + c * cy)
+            moves.append(_Placed(_Line(L), start, p["rotation"] + sg * i * 0.5 * math.pi))
     return moves, sg
 
 

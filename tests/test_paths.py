@@ -52,7 +52,8 @@ def test_velocity_is_derivative_of_position(fine_paths, shape):
     # Position is the integral of velocity (trapezoid rule, error O(dt²) per unit time):
     # over ~30 s the drift stays below 1e-4 m.
     for pos, vel in (("x", "vx"), ("y", "vy")):
-        integ = p[pos][0] + np.concatenate([[0.0], np.cumsum(0.5 * (p[vel][1:] + p[vel][:-1]) * dt)])
+        steps = 0.5 * (p[vel][1:] + p[vel][:-1]) * dt
+        integ = p[pos][0] + np.concatenate([[0.0], np.cumsum(steps)])
         np.testing.assert_allclose(p[pos], integ, atol=1e-4, err_msg=f"{shape}: {pos}")
 
 
@@ -284,6 +285,13 @@ def test_bad_parameters_name_the_field(shape, params, field):
 def test_bad_parameter_message_gives_value_and_range():
     with pytest.raises(ValueError, match=r"'radius' = -1.0 .*\[0.1, 1000\] m"):
         P.make_path("circle", radius=-1.0)
+
+
+def test_numpy_and_jax_scalars_accepted():
+    p = P.make_path("circle", radius=np.float32(2.0), laps=np.int64(1), peak_speed=jnp.array(0.4))
+    assert float(p.duration) == pytest.approx(2 * np.pi * 2.0 / 0.4 + 0.4 / 0.25, rel=1e-6)
+    with pytest.raises(ValueError, match="'radius'"):
+        P.make_path("circle", radius=np.array([1.0, 2.0]))
 
 
 def test_unknown_shape_and_parameter():
