@@ -1,0 +1,699 @@
+"""Sweep files: TOML text → validated list of :class:`hlip_jax.config.ScenarioConfig`.
+
+A sweep file (read with :mod:`tomllib`) has five top-level keys::
+
+    name = "paper"                       # optional; default: the file's stem
+    description = "..."                  # optional free text
+
+    [base]                               # settings shared by every scenario
+    plant = "hlip"                       # ScenarioConfig fields: plant, seed, duration
+    duration = 30.0
+    [base.hlip]    z0 = 0.8 ...          # HLIPConfig
+    [base.mpc]     alpha = 0.01 ...      # MPCConfig
+    [base.gain]    type = "lqr" ...      # GainConfig
+    [base.disturbance] noise_p = 0.0 ... # DisturbanceConfig
+    [[base.disturbance.pushes]]          # PushConfig, a list
+    [[base.obstacles]]                   # ObstacleConfig, a list
+    [base.path]                          # default path parameters for every [[paths]] entry
+
+    [[paths]]                            # one entry per reference path (at least one)
+    shape = "circle"                     # a key of hlip_jax.paths.SHAPES
+    name = "circle-trap"                 # optional; default: the shape (made unique)
+    radius = 2.0                         # every other key is a parameter of that shape
+    [paths.overrides]                    # optional: base settings for this path only
+    obstacles = [{x = 3.0, y = 0.5, radius = 0.3}]
+
+    [grid.product]                       # Cartesian product over these axes
+    "mpc.alpha" = [0.01, 0.1]
+    "gain.type" = ["lqr", "deadbeat"]
+    [[grid.zip]]                         # one more axis: these lists are walked together
+    "disturbance.pushes.0.force" = [100.0, 200.0]
+    "disturbance.pushes.0.time"  = [5.0, 10.0]
+
+Grid field names are dotted paths into the scenario: ``seed``, ``duration``, ``plant``,
+``hlip.*``, ``mpc.*``, ``gain.*``, ``disturbance.*``, ``disturbance.pushes.<i>.*``,
+``obstacles.<i>.*`` (the list entry must exist in the base or the path's overrides) and
+``path.<param>`` (a parameter of the path's shape).  The scenarios are, path-major, every path
+× every point of the product of all axes (a zip group is one axis).
+
+Validation happens here, before anything is compiled: an unknown key (with the closest known
+key, via :mod:`difflib`), a wrong type, NaN/inf, a value outside the range declared in
+:mod:`hlip_jax.config` (or in the path's parameter spec), an empty grid axis, zip lists of
+unequal length — each raises :class:`SweepError` whose message names the field, the value and
+what is allowed.
+
+Decisions:
+
+* Seeds.  A scenario's seed is derived from the configured seed and the scenario's name,
+  ``crc32(f"{seed}:{name}") mod 2³¹``, so it depends on nothing but the scenario itself (not on
+  its index, the chunk size or which other scenarios are in the sweep): resuming, ``--limit`` or
+  reordering cannot change a scenario's noise.  Sweeping ``seed`` gives replicates.
+* Integers are accepted for float fields; booleans are never numbers.
+* ``swept`` of each scenario holds ``{"path": <path name>, <grid field>: <value>, ...}``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import hashlib
+import itertools
+import json
+import math
+import tomllib
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from hlip_jax import config as C
+
+__all__ = [
+    "SweepError", "Axis", "Sweep", "load_sweep", "parse_sweep", "config_to_dict",
+    "config_hash", "path_param_spec", "known_shapes", "MAX_SCENARIOS",
+]
+
+MAX_SCENARIOS = 10_000_000  # a grid this large is a mistake, not a sweep
+
+TOP_KEYS = ("name", "description", "base", "paths", "grid")
+GRID_KEYS = ("product", "zip")
+PATH_RESERVED = ("shape", "name", "overrides")
+# ScenarioConfig fields a sweep file may set in [base] / [paths.overrides]; name and swept are
+# generated, path comes from [[paths]] (+ [base.path] defaults).
+BASE_EXCLUDE = ("name", "swept", "path")
+# list-valued config fields and the dataclass of their entries
+LIST_ITEMS = {"pushes": C.PushConfig, "obstacles": C.ObstacleConfig}
+
+
+class SweepError(ValueError):
+    """A sweep file (or a command-line override) is invalid.  ``str(err)`` is one clear line."""
+
+
+# --------------------------------------------------------------------------------------------
+# path parameter specs (from hlip_jax.paths)
+
+
+def known_shapes() -> tuple[str, ...]:
+    """Names of the path shapes :mod:`hlip_jax.paths` provides."""
+    from hlip_jax import paths
+    return tuple(paths.SHAPES)
+
+
+def path_param_spec(shape: str) -> dict[str, dict]:
+    """Parameter spec of ``shape``: ``{param: {"default", "lo", "hi", "doc", "unit", "choices"}}``.
+
+    Read from :mod:`hlip_jax.paths` (``PARAM_SPECS[shape]``); missing keys get neutral values.
+    """
+    from hlip_jax import paths
+    raw = paths.PARAM_SPECS[shape]
+    out = {}
+    for k, v in raw.items():
+        d = dict(v) if isinstance(v, dict) else dict(dataclasses.asdict(v)) if dataclasses.is_dataclass(v) else {"default": v}
+        d.setdefault("lo", -math.inf)
+        d.setdefault("hi", math.inf)
+        d.setdefault("doc", "")
+        d.setdefault("unit", "")
+        d.setdefault("choices", None)
+        out[k] = d
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# scalar checks
+
+
+def _fmt(v) -> str:
+    if isinstance(v, str):
+        return repr(v)
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, (dict, list)):
+        s = json.dumps(v, default=str)
+        return s if len(s) <= 60 else s[:57] + "..."
+    return repr(v)
+
+
+def _tname(v) -> str:
+    return {bool: "boolean", int: "integer", float: "float", str: "string", list: "array",
+            dict: "table"}.get(type(v), type(v).__name__)
+
+
+def _allowed(meta: dict, kind: str) -> str:
+    if meta.get("choices"):
+        return "one of " + ", ".join(repr(c) for c in meta["choices"])
+    lo, hi = meta.get("lo", -math.inf), meta.get("hi", math.inf)
+    unit = f" [{meta['unit']}]" if meta.get("unit") else ""
+    what = "an integer" if kind == "int" else "a finite number"
+    def num(x):
+        return f"{int(x)}" if kind == "int" or float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
+    if math.isinf(lo) and math.isinf(hi):
+        return what + unit
+    if math.isinf(hi):
+        return f"{what} >= {num(lo)}{unit}"
+    if math.isinf(lo):
+        return f"{what} <= {num(hi)}{unit}"
+    return f"{what} in [{num(lo)}, {num(hi)}]{unit}"
+
+
+def check_scalar(value, kind: str, meta: dict, where: str):
+    """Validate one scalar against its type (``"float" | "int" | "str" | "bool"``) and metadata.
+
+    Returns the value coerced to the field type (int → float for float fields).
+    """
+    doc = f" ({meta['doc']})" if meta.get("doc") else ""
+    if kind == "str":
+        if not isinstance(value, str):
+            raise SweepError(f"{where}: expected a string, got {_tname(value)} {_fmt(value)}; "
+                             f"allowed: {_allowed(meta, kind)}")
+        if meta.get("choices") and value not in meta["choices"]:
+            near = difflib.get_close_matches(value, list(meta["choices"]), n=1)
+            hint = f"; did you mean {near[0]!r}?" if near else ""
+            raise SweepError(f"{where}: {value!r} is not allowed; allowed: "
+                             f"{_allowed(meta, kind)}{hint}")
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise SweepError(f"{where}: expected true or false, got {_tname(value)} {_fmt(value)}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SweepError(f"{where}: expected {'an integer' if kind == 'int' else 'a number'}, "
+                         f"got {_tname(value)} {_fmt(value)}; allowed: {_allowed(meta, kind)}{doc}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise SweepError(f"{where}: {value} is not a finite number; allowed: "
+                         f"{_allowed(meta, kind)}{doc}")
+    if kind == "int":
+        if isinstance(value, float):
+            if not value.is_integer():
+                raise SweepError(f"{where}: expected an integer, got {value:g}; allowed: "
+                                 f"{_allowed(meta, kind)}{doc}")
+            value = int(value)
+    else:
+        value = float(value)
+    lo, hi = meta.get("lo", -math.inf), meta.get("hi", math.inf)
+    if not (lo <= value <= hi):
+        raise SweepError(f"{where}: {_fmt(value)} is out of range; allowed: "
+                         f"{_allowed(meta, kind)}{doc}")
+    if meta.get("choices") and value not in meta["choices"]:
+        raise SweepError(f"{where}: {_fmt(value)} is not allowed; allowed: {_allowed(meta, kind)}")
+    return value
+
+
+def _unknown_key(key: str, known, where: str) -> SweepError:
+    known = list(known)
+    near = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
+    hint = f"; did you mean {near[0]!r}?" if near else ""
+    loc = f"{where}.{key}" if where else str(key)
+    return SweepError(f"{loc}: unknown key{hint} (known keys: {', '.join(known)})")
+
+
+# --------------------------------------------------------------------------------------------
+# dataclass schema walking
+
+
+def _fields(cls, exclude=()) -> dict[str, dataclasses.Field]:
+    return {f.name: f for f in dataclasses.fields(cls) if f.name not in exclude}
+
+
+def _nested_cls(f: dataclasses.Field):
+    """The dataclass of a nested config field, or None for scalars."""
+    if f.default_factory is not dataclasses.MISSING:
+        v = f.default_factory()
+        if dataclasses.is_dataclass(v):
+            return type(v)
+    return None
+
+
+def _kind(f: dataclasses.Field) -> str:
+    t = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+    return {"float": "float", "int": "int", "str": "str", "bool": "bool"}.get(t, t)
+
+
+def _build(cls, raw, where: str, exclude=()):
+    """Validate the table ``raw`` into ``cls`` (missing keys take the dataclass defaults)."""
+    if not isinstance(raw, dict):
+        raise SweepError(f"{where}: expected a table, got {_tname(raw)} {_fmt(raw)}")
+    fields = _fields(cls, exclude)
+    for key in raw:
+        if key not in fields:
+            raise _unknown_key(key, fields, where)
+    kwargs = {}
+    for name, f in fields.items():
+        if name not in raw:
+            continue
+        v, loc = raw[name], f"{where}.{name}"
+        if name in LIST_ITEMS:
+            if not isinstance(v, list):
+                raise SweepError(f"{loc}: expected an array of tables, got {_tname(v)} {_fmt(v)}")
+            kwargs[name] = tuple(_build(LIST_ITEMS[name], item, f"{loc}.{i}")
+                                 for i, item in enumerate(v))
+        elif (sub := _nested_cls(f)) is not None:
+            kwargs[name] = _build(sub, v, loc)
+        else:
+            kwargs[name] = check_scalar(v, _kind(f), dict(f.metadata), loc)
+    return cls(**kwargs)
+
+
+def _check_path_params(shape: str, params: dict, where: str) -> dict:
+    spec = path_param_spec(shape)
+    out = {}
+    for k, v in params.items():
+        if k not in spec:
+            raise _unknown_key(k, list(spec) + list(PATH_RESERVED), where)
+        meta = spec[k]
+        kind = meta.get("kind") or "float"
+        if kind == "points":
+            from hlip_jax import paths
+            try:
+                paths.validate_params(shape, {k: v})
+            except (ValueError, TypeError) as err:
+                raise SweepError(f"{where}.{k}: {err}") from None
+            out[k] = [[float(a) for a in pt] for pt in v]
+            continue
+        out[k] = check_scalar(v, kind, meta, f"{where}.{k}")
+    return out
+
+
+def _cross_checks(cfg: C.ScenarioConfig, where: str) -> None:
+    """Checks that involve several fields (single-field ranges live in config.py)."""
+    m = cfg.mpc
+    if m.step_width_min > m.step_width_max:
+        raise SweepError(f"{where}: mpc.step_width_min: {m.step_width_min:g} exceeds "
+                         f"mpc.step_width_max = {m.step_width_max:g}; allowed: min <= max")
+    if m.step_length_min > m.step_length_max:
+        raise SweepError(f"{where}: mpc.step_length_min: {m.step_length_min:g} exceeds "
+                         f"mpc.step_length_max = {m.step_length_max:g}; allowed: min <= max")
+    T = cfg.hlip.t_ssp + cfg.hlip.t_dsp
+    if cfg.duration < 2 * T:
+        raise SweepError(f"{where}: duration: {cfg.duration:g} s is shorter than two walking steps "
+                         f"(2 × (hlip.t_ssp + hlip.t_dsp) = {2 * T:g} s); allowed: >= {2 * T:g}")
+
+
+# --------------------------------------------------------------------------------------------
+# sweep structure
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One grid axis: one field (product) or several fields walked together (zip)."""
+    fields: tuple[str, ...]
+    values: tuple[tuple, ...]   # values[j] = the j-th point: one value per field
+    zipped: bool = False
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A validated, expanded sweep."""
+    name: str
+    description: str
+    source: str                       # file the text came from ("<string>" otherwise)
+    text: str                         # the sweep file text, verbatim
+    paths: tuple[str, ...]            # path names in order
+    axes: tuple[Axis, ...]
+    scenarios: tuple[C.ScenarioConfig, ...]
+    total: int                        # scenarios before --limit
+
+    @property
+    def swept_fields(self) -> tuple[str, ...]:
+        return tuple(f for a in self.axes for f in a.fields)
+
+    def describe(self) -> str:
+        """Human-readable grid summary (used by ``hlip-sweep show``)."""
+        lines = [f"sweep {self.name!r} ({self.source})"]
+        if self.description:
+            lines.append(f"  {self.description}")
+        lines.append(f"  paths ({len(self.paths)}): {', '.join(self.paths)}")
+        if not self.axes:
+            lines.append("  grid: none (one scenario per path)")
+        for a in self.axes:
+            kind = "zip" if a.zipped else "product"
+            if len(a.fields) == 1:
+                vals = ", ".join(_fmt(v[0]) for v in a.values)
+            else:
+                vals = ", ".join("(" + ", ".join(_fmt(x) for x in v) + ")" for v in a.values)
+            lines.append(f"  axis [{kind}] {', '.join(a.fields)}: {len(a)} values: {vals}")
+        n_grid = math.prod(len(a) for a in self.axes) if self.axes else 1
+        lines.append(f"  scenarios: {len(self.paths)} paths x {n_grid} grid points = {self.total}"
+                     + (f" (limited to {len(self.scenarios)})" if len(self.scenarios) != self.total
+                        else ""))
+        return "\n".join(lines)
+
+
+def _resolve_field(field: str, where: str) -> list:
+    """Split a dotted grid field into keys, checking it against the config schema.
+
+    Returns the key list (list indices as int).  ``path.<param>`` is checked later against
+    each path's shape spec.
+    """
+    if not isinstance(field, str) or not field:
+        raise SweepError(f"{where}: grid field names must be non-empty strings")
+    parts = field.split(".")
+    if parts[0] == "path":
+        if len(parts) != 2 or not parts[1]:
+            raise SweepError(f"{where}.{field!r}: path fields are 'path.<parameter>' "
+                             f"(e.g. 'path.peak_speed')")
+        if parts[1] in PATH_RESERVED:
+            raise SweepError(f"{where}.{field!r}: {parts[1]!r} cannot be swept; add [[paths]] "
+                             f"entries instead")
+        return parts
+    cls, keys, prefix = C.ScenarioConfig, [], ""
+    i = 0
+    while i < len(parts):
+        key = parts[i]
+        fields = _fields(cls, BASE_EXCLUDE if cls is C.ScenarioConfig else ())
+        if key not in fields:
+            known = [prefix + k for k in fields] + (["path.<parameter>"] if not prefix else [])
+            near = difflib.get_close_matches(prefix + key, known, n=1, cutoff=0.6)
+            hint = f"; did you mean {near[0]!r}?" if near else ""
+            raise SweepError(f"{where}.{field!r}: unknown grid field{hint} "
+                             f"(known here: {', '.join(known)})")
+        f = fields[key]
+        keys.append(key)
+        if key in LIST_ITEMS:
+            if i + 1 >= len(parts) or not parts[i + 1].isdigit():
+                first = next(iter(_fields(LIST_ITEMS[key])))
+                raise SweepError(f"{where}.{field!r}: list field '{prefix}{key}' needs an index "
+                                 f"and a member, e.g. '{prefix}{key}.0.{first}'")
+            keys.append(int(parts[i + 1]))
+            cls, prefix, i = LIST_ITEMS[key], f"{prefix}{key}.{parts[i + 1]}.", i + 2
+            if i >= len(parts):
+                raise SweepError(f"{where}.{field!r}: name a member of the list entry, e.g. "
+                                 f"'{prefix}{next(iter(_fields(cls)))}'")
+            continue
+        sub = _nested_cls(f)
+        if sub is not None:
+            if i + 1 >= len(parts):
+                raise SweepError(f"{where}.{field!r}: '{prefix}{key}' is a table; sweep one of its "
+                                 f"fields, e.g. '{prefix}{key}.{next(iter(_fields(sub)))}'")
+            cls, prefix = sub, f"{prefix}{key}."
+        elif i + 1 < len(parts):
+            raise SweepError(f"{where}.{field!r}: '{prefix}{key}' is a value, not a table")
+        i += 1
+    return keys
+
+
+def _field_meta(field: str):
+    """(kind, metadata) of a non-path grid field, for checking its values up front."""
+    cls = C.ScenarioConfig
+    parts = field.split(".")
+    i = 0
+    while True:
+        key = parts[i]
+        f = _fields(cls)[key]
+        if key in LIST_ITEMS:
+            cls, i = LIST_ITEMS[key], i + 2
+            continue
+        sub = _nested_cls(f)
+        if sub is None:
+            return _kind(f), dict(f.metadata)
+        cls, i = sub, i + 1
+
+
+def _parse_axes(grid, where="grid") -> tuple[Axis, ...]:
+    if grid is None:
+        return ()
+    if not isinstance(grid, dict):
+        raise SweepError(f"{where}: expected a table with 'product' and/or 'zip', got {_tname(grid)}")
+    for k in grid:
+        if k not in GRID_KEYS:
+            raise _unknown_key(k, GRID_KEYS, where)
+    axes: list[Axis] = []
+    seen: dict[str, str] = {}
+
+    def add_field(field, loc):
+        _resolve_field(field, loc)
+        if field in seen:
+            raise SweepError(f"{loc}.{field!r}: field is swept twice (also in {seen[field]})")
+        seen[field] = loc
+
+    def check_values(field, vals, loc):
+        if not isinstance(vals, list):
+            raise SweepError(f"{loc}.{field!r}: expected an array of values, got "
+                             f"{_tname(vals)} {_fmt(vals)}")
+        if len(vals) == 0:
+            raise SweepError(f"{loc}.{field!r}: empty grid axis; give at least one value")
+        if field.split(".")[0] != "path":
+            kind, meta = _field_meta(field)
+            vals = [check_scalar(v, kind, meta, f"{loc}.{field!r}[{j}]") for j, v in enumerate(vals)]
+        else:
+            for j, v in enumerate(vals):
+                if isinstance(v, (list, dict)) or (isinstance(v, float) and not math.isfinite(v)):
+                    raise SweepError(f"{loc}.{field!r}[{j}]: {_fmt(v)} is not a finite scalar")
+        return vals
+
+    def check_distinct(rows, loc):
+        if len(set(map(repr, rows))) != len(rows):
+            dup = next(r for r in rows if sum(repr(q) == repr(r) for q in rows) > 1)
+            raise SweepError(f"{loc}: repeated grid point {_fmt(list(dup)) if isinstance(dup, tuple) else _fmt(dup)}; "
+                             f"each grid point must be distinct")
+
+    prod = grid.get("product", {})
+    if not isinstance(prod, dict):
+        raise SweepError(f"{where}.product: expected a table of field = [values], got {_tname(prod)}")
+    for field, vals in prod.items():
+        loc = f"{where}.product"
+        add_field(field, loc)
+        vals = check_values(field, vals, loc)
+        check_distinct(vals, f"{loc}.{field!r}")
+        axes.append(Axis((field,), tuple((v,) for v in vals)))
+    zips = grid.get("zip", [])
+    if isinstance(zips, dict):
+        zips = [zips]
+    if not isinstance(zips, list):
+        raise SweepError(f"{where}.zip: expected an array of tables ([[grid.zip]]), got {_tname(zips)}")
+    for zi, z in enumerate(zips):
+        loc = f"{where}.zip.{zi}"
+        if not isinstance(z, dict) or not z:
+            raise SweepError(f"{loc}: expected a non-empty table of field = [values]")
+        cols, lens = [], {}
+        for field, vals in z.items():
+            add_field(field, loc)
+            vals = check_values(field, vals, loc)
+            cols.append(vals)
+            lens[field] = len(vals)
+        if len(set(lens.values())) != 1:
+            desc = ", ".join(f"{f!r}: {n}" for f, n in lens.items())
+            raise SweepError(f"{loc}: zipped axes must have equal lengths, got {desc}")
+        rows = list(zip(*cols))
+        check_distinct(rows, f"{loc} ({', '.join(map(repr, z))})")
+        axes.append(Axis(tuple(z), tuple(rows), zipped=True))
+    return tuple(axes)
+
+
+def _set_dotted(d: dict, keys: list, value, where: str) -> None:
+    """Set ``d[k0][k1]...`` (creating tables; list entries must exist)."""
+    cur = d
+    for j, k in enumerate(keys[:-1]):
+        if isinstance(k, int):
+            if not isinstance(cur, list) or k >= len(cur):
+                n = len(cur) if isinstance(cur, list) else 0
+                raise SweepError(f"{where}: list '{'.'.join(map(str, keys[:j]))}' has {n} "
+                                 f"entr{'y' if n == 1 else 'ies'}; index {k} does not exist "
+                                 f"(allowed: 0..{n - 1})" if n else
+                                 f"{where}: list '{'.'.join(map(str, keys[:j]))}' is empty in "
+                                 f"the base settings; index {k} does not exist")
+            cur = cur[k]
+        else:
+            nxt = keys[j + 1]
+            if k not in cur:
+                cur[k] = [] if isinstance(nxt, int) else {}
+            cur = cur[k]
+    cur[keys[-1]] = value
+
+
+def _deep_merge(base: dict, over: dict) -> dict:
+    out = json.loads(json.dumps(base))
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _deep_merge(out[k], v)
+        else:
+            out[k] = json.loads(json.dumps(v))
+    return out
+
+
+def _derive_seed(seed: int, name: str) -> int:
+    return zlib.crc32(f"{seed}:{name}".encode()) & 0x7FFFFFFF
+
+
+def _value_label(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def parse_sweep(text: str, *, source: str = "<string>", plant: str | None = None,
+                duration: float | None = None, limit: int | None = None,
+                default_name: str = "sweep") -> Sweep:
+    """Parse, validate and expand a sweep file's text.
+
+    Args:
+      text: TOML text.
+      source: file name for messages.
+      plant, duration: command-line overrides applied to every scenario (validated like the file).
+      limit: keep only the first ``limit`` scenarios (≥ 1).
+      default_name: sweep name when the file sets none.
+    Raises:
+      SweepError: with a one-line message naming the field, the value and what is allowed.
+    """
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SweepError(f"{source}: not valid TOML: {err}") from None
+    try:
+        return _expand(doc, text, source, plant, duration, limit, default_name)
+    except SweepError as err:
+        msg = str(err)
+        raise SweepError(msg if msg.startswith(source) else f"{source}: {msg}") from None
+
+
+def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
+    for k in doc:
+        if k not in TOP_KEYS:
+            raise _unknown_key(k, TOP_KEYS, "")
+    name = doc.get("name", default_name)
+    if not isinstance(name, str) or not name.strip() or any(c in name for c in "/\\\0"):
+        raise SweepError(f"name: expected a non-empty string without slashes, got {_fmt(name)}")
+    desc = doc.get("description", "")
+    if not isinstance(desc, str):
+        raise SweepError(f"description: expected a string, got {_tname(desc)}")
+
+    base = doc.get("base", {})
+    if not isinstance(base, dict):
+        raise SweepError(f"base: expected a table, got {_tname(base)} {_fmt(base)}")
+    base = dict(base)
+    base_path = base.pop("path", {})
+    if not isinstance(base_path, dict):
+        raise SweepError(f"base.path: expected a table of path parameters, got {_tname(base_path)}")
+    if plant is not None:
+        base["plant"] = plant
+    if duration is not None:
+        base["duration"] = duration
+    # validate the base alone first, so its errors name base.* fields
+    _build(C.ScenarioConfig, base, "base", exclude=BASE_EXCLUDE)
+
+    shapes = known_shapes()
+    paths_raw = doc.get("paths")
+    if paths_raw is None:
+        raise SweepError("paths: missing; add at least one [[paths]] entry with a shape "
+                         f"(one of {', '.join(shapes)})")
+    if not isinstance(paths_raw, list) or not paths_raw:
+        raise SweepError(f"paths: expected a non-empty array of tables ([[paths]]), got {_fmt(paths_raw)}")
+    paths = []   # (name, shape, params, merged base)
+    names_seen: dict[str, int] = {}
+    for i, p in enumerate(paths_raw):
+        loc = f"paths.{i}"
+        if not isinstance(p, dict):
+            raise SweepError(f"{loc}: expected a table, got {_tname(p)} {_fmt(p)}")
+        shape = p.get("shape")
+        if shape is None:
+            raise SweepError(f"{loc}.shape: missing; allowed: one of {', '.join(map(repr, shapes))}")
+        check_scalar(shape, "str", {"choices": shapes}, f"{loc}.shape")
+        pname = p.get("name")
+        if pname is None:
+            names_seen[shape] = names_seen.get(shape, 0) + 1
+            pname = shape if names_seen[shape] == 1 else f"{shape}-{names_seen[shape]}"
+        if not isinstance(pname, str) or not pname.strip() or "/" in pname:
+            raise SweepError(f"{loc}.name: expected a non-empty string without '/', got {_fmt(pname)}")
+        if any(q[0] == pname for q in paths):
+            raise SweepError(f"{loc}.name: {pname!r} is used by two paths; names must be unique")
+        params = {k: v for k, v in p.items() if k not in PATH_RESERVED}
+        params = {**{k: v for k, v in base_path.items()}, **params}
+        params = _check_path_params(shape, params, loc if set(params) - set(base_path) else "base.path")
+        over = p.get("overrides", {})
+        if not isinstance(over, dict):
+            raise SweepError(f"{loc}.overrides: expected a table, got {_tname(over)}")
+        merged = _deep_merge(base, over)
+        _build(C.ScenarioConfig, merged, f"{loc}.overrides", exclude=BASE_EXCLUDE)
+        paths.append((pname, shape, params, merged))
+
+    axes = _parse_axes(doc.get("grid"))
+    n_grid = math.prod(len(a) for a in axes) if axes else 1
+    total = len(paths) * n_grid
+    if total > MAX_SCENARIOS:
+        raise SweepError(f"grid: {total} scenarios exceed the limit of {MAX_SCENARIOS}")
+    if limit is not None:
+        if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
+            raise SweepError(f"--limit: expected an integer >= 1, got {_fmt(limit)}")
+
+    resolved = [(f, _resolve_field(f, "grid")) for a in axes for f in a.fields]
+    keymap = dict(resolved)
+    # check path.* fields against every path's shape before expanding
+    for f, keys in resolved:
+        if keys[0] == "path":
+            for pname, shape, _, _ in paths:
+                spec = path_param_spec(shape)
+                if keys[1] not in spec:
+                    near = difflib.get_close_matches(keys[1], list(spec), n=1)
+                    hint = f"; did you mean 'path.{near[0]}'?" if near else ""
+                    raise SweepError(f"grid.{f!r}: path {pname!r} (shape {shape!r}) has no "
+                                     f"parameter {keys[1]!r}{hint} (known: {', '.join(spec)})")
+
+    scenarios = []
+    stop = total if limit is None else min(limit, total)
+    for pname, shape, params, merged in paths:
+        for point in itertools.product(*[a.values for a in axes]) if axes else [()]:
+            if len(scenarios) >= stop:
+                break
+            raw = json.loads(json.dumps(merged))
+            pparams = dict(params)
+            swept: dict[str, Any] = {"path": pname}
+            labels = []
+            for a, vals in zip(axes, point):
+                for f, v in zip(a.fields, vals):
+                    keys = keymap[f]
+                    where = f"grid.{f!r} = {_fmt(v)} (path {pname!r})"
+                    if keys[0] == "path":
+                        pparams.update(_check_path_params(shape, {keys[1]: v}, where.rsplit(" =", 1)[0]))
+                    else:
+                        _set_dotted(raw, keys, v, where)
+                    swept[f] = v
+                    labels.append(f"{f}={_value_label(v)}")
+            sname = pname + ("/" + ",".join(labels) if labels else "")
+            where = f"scenario {sname!r}"
+            cfg = _build(C.ScenarioConfig, raw, where, exclude=BASE_EXCLUDE)
+            cfg = dataclasses.replace(cfg, name=sname, seed=_derive_seed(cfg.seed, sname),
+                                      path=C.PathConfig(shape=shape, params=pparams), swept=swept)
+            _cross_checks(cfg, where)
+            scenarios.append(cfg)
+    sizes = {}
+    for cfg in scenarios:
+        spec = path_param_spec(cfg.path.shape)
+        if "n_samples" in spec:
+            sizes.setdefault(cfg.path.params.get("n_samples", spec["n_samples"]["default"]),
+                             cfg.swept["path"])
+    if len(sizes) > 1:
+        desc_sizes = ", ".join(f"{v!r}: {k}" for k, v in sizes.items())
+        raise SweepError(f"path.n_samples: every path of a sweep needs the same table size (a "
+                         f"static shape), got {desc_sizes}; allowed: one value (set it in "
+                         f"[base.path])")
+    return Sweep(name=name, description=desc, source=source, text=text,
+                 paths=tuple(p[0] for p in paths), axes=axes, scenarios=tuple(scenarios),
+                 total=total)
+
+
+def load_sweep(path, **overrides) -> Sweep:
+    """Read and expand a sweep file (see :func:`parse_sweep` for the keyword overrides)."""
+    p = Path(path)
+    if not p.is_file():
+        raise SweepError(f"{path}: sweep file not found" + (" (it is a directory)" if p.is_dir() else ""))
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise SweepError(f"{path}: cannot read the sweep file: {err}") from None
+    return parse_sweep(text, source=str(path), default_name=p.stem, **overrides)
+
+
+# --------------------------------------------------------------------------------------------
+# serialisation
+
+
+def config_to_dict(cfg: C.ScenarioConfig) -> dict:
+    """JSON-ready nested dict of a scenario (tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(cfg)))
+
+
+def config_hash(configs, extra: dict | None = None) -> str:
+    """SHA-256 of the canonical JSON of the expanded configs (and ``extra``, e.g. the chunk size)."""
+    payload = {"configs": [config_to_dict(c) for c in configs], "extra": extra or {}}
+    s = json.dumps(payload, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(s.encode()).hexdigest()

@@ -1,0 +1,177 @@
+"""Sweep files → validated ScenarioConfig lists (hlip_jax.sweep).
+
+The broken corpus in tests/sweeps_broken/ holds one mistake per file; each file's
+``# expect: ...`` header lines list substrings its error message must contain (the field, the
+value, what is allowed), so every file checks its own message.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import pytest
+
+from hlip_jax import config as C
+from hlip_jax import sweep
+
+ROOT = Path(__file__).resolve().parent.parent
+SHIPPED = sorted((ROOT / "sweeps").glob("*.toml"))
+BROKEN = sorted((Path(__file__).parent / "sweeps_broken").glob("*.toml"))
+
+
+def _expects(path: Path) -> list[str]:
+    return [ln.split("# expect:", 1)[1].strip() for ln in path.read_text().splitlines()
+            if ln.startswith("# expect:")]
+
+
+def test_corpus_is_large_enough():
+    assert len(BROKEN) >= 30
+    assert all(_expects(p) for p in BROKEN), "every broken file states its expected message"
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
+def test_shipped_sweeps_validate(path):
+    sw = sweep.load_sweep(path)
+    assert sw.name == path.stem
+    assert len(sw.scenarios) == sw.total >= 1
+    assert all(isinstance(c, C.ScenarioConfig) for c in sw.scenarios)
+    names = [c.name for c in sw.scenarios]
+    assert len(set(names)) == len(names), "scenario names are unique"
+    n_grid = math.prod(len(a) for a in sw.axes) if sw.axes else 1
+    assert sw.total == len(sw.paths) * n_grid
+
+
+def test_paper_sweep_contents():
+    sw = sweep.load_sweep(ROOT / "sweeps" / "paper.toml")
+    assert 10 <= len(sw.scenarios) <= 40
+    shapes = {c.path.shape for c in sw.scenarios}
+    assert {"circle", "sinusoid", "square", "cardioid"} <= shapes
+    assert {c.path.params.get("profile") for c in sw.scenarios} >= {"trapezoid", "triangle"}
+    obst = [c for c in sw.scenarios if c.obstacles]
+    assert obst and all(c.path.shape == "sinusoid" for c in obst)
+    pushed = [c for c in sw.scenarios if c.disturbance.pushes]
+    assert pushed
+    p = pushed[0].disturbance.pushes[0]
+    assert (p.force, p.duration, p.time, p.direction) == (200.0, 0.1, 10.0, 90.0)
+
+
+@pytest.mark.parametrize("path", BROKEN, ids=lambda p: p.stem)
+def test_broken_sweep_fails_with_its_message(path):
+    with pytest.raises(sweep.SweepError) as ei:
+        sweep.load_sweep(path)
+    msg = str(ei.value)
+    assert "\n" not in msg, "one line"
+    assert msg.startswith(str(path)), "names the file"
+    for frag in _expects(path):
+        assert frag in msg, f"{frag!r} missing from: {msg}"
+
+
+def test_broken_messages_are_distinct():
+    msgs = set()
+    for p in BROKEN:
+        try:
+            sweep.load_sweep(p)
+        except sweep.SweepError as err:
+            msgs.add(str(err).split(": ", 1)[1])
+    assert len(msgs) == len(BROKEN)
+
+
+GRID = """
+name = "g"
+[base]
+duration = 5.0
+seed = 7
+[[base.disturbance.pushes]]
+force = 50.0
+[[paths]]
+shape = "circle"
+radius = 2
+[[paths]]
+shape = "line"
+name = "straight"
+[grid.product]
+"mpc.alpha" = [0.01, 0.1]
+"gain.type" = ["lqr", "deadbeat"]
+[[grid.zip]]
+"disturbance.pushes.0.force" = [1, 2, 3]
+"path.peak_speed" = [0.3, 0.4, 0.5]
+"""
+
+
+def test_expansion_product_and_zip():
+    sw = sweep.parse_sweep(GRID)
+    assert sw.total == len(sw.scenarios) == 2 * 2 * 2 * 3
+    assert sw.paths == ("circle", "straight")
+    # path-major, then the product in axis order (itertools.product semantics)
+    expect = list(itertools.product(["circle", "straight"], [0.01, 0.1], ["lqr", "deadbeat"],
+                                    [(1.0, 0.3), (2.0, 0.4), (3.0, 0.5)]))
+    for cfg, (p, a, g, (f, v)) in zip(sw.scenarios, expect):
+        assert cfg.swept["path"] == p
+        assert cfg.mpc.alpha == a and cfg.swept["mpc.alpha"] == a
+        assert cfg.gain.type == g
+        assert cfg.disturbance.pushes[0].force == f and isinstance(cfg.disturbance.pushes[0].force, float)
+        assert cfg.path.params["peak_speed"] == v
+        assert cfg.duration == 5.0
+    assert sw.scenarios[0].path.params["radius"] == 2.0
+    assert "radius" not in sw.scenarios[-1].path.params
+    text = sw.describe()
+    assert "24" in text and "mpc.alpha" in text and "zip" in text
+
+
+def test_seeds_depend_only_on_the_scenario():
+    a = sweep.parse_sweep(GRID)
+    b = sweep.parse_sweep(GRID, limit=5)
+    assert [c.seed for c in a.scenarios[:5]] == [c.seed for c in b.scenarios]
+    assert len({c.seed for c in a.scenarios}) == len(a.scenarios)
+    assert all(0 <= c.seed < 2**31 for c in a.scenarios)
+    c = sweep.parse_sweep(GRID.replace("seed = 7", "seed = 8"))
+    assert all(x.seed != y.seed for x, y in zip(a.scenarios, c.scenarios))
+
+
+def test_overrides_and_limit():
+    sw = sweep.parse_sweep(GRID, plant="cassie", duration=3.0, limit=3)
+    assert len(sw.scenarios) == 3 and sw.total == 24
+    assert all(c.plant == "cassie" and c.duration == 3.0 for c in sw.scenarios)
+    with pytest.raises(sweep.SweepError, match="base.duration"):
+        sweep.parse_sweep(GRID, duration=-1.0)
+    with pytest.raises(sweep.SweepError, match="base.plant"):
+        sweep.parse_sweep(GRID, plant="atlas")
+    with pytest.raises(sweep.SweepError, match="--limit"):
+        sweep.parse_sweep(GRID, limit=0)
+
+
+def test_path_overrides_apply_to_one_path():
+    text = """
+[[paths]]
+shape = "circle"
+[[paths]]
+shape = "sinusoid"
+[[paths.overrides.obstacles]]
+x = 1.0
+y = 0.5
+radius = 0.2
+[grid.product]
+"obstacles.0.radius" = [0.1, 0.2]
+"""
+    # the grid field exists only on the sinusoid: the circle lacks obstacle 0
+    with pytest.raises(sweep.SweepError, match=r"path 'circle'.*index 0 does not exist"):
+        sweep.parse_sweep(text)
+    sw = sweep.parse_sweep(text.split("[grid.product]")[0])
+    assert sw.scenarios[0].obstacles == ()
+    assert sw.scenarios[1].obstacles == (C.ObstacleConfig(1.0, 0.5, 0.2),)
+
+
+def test_config_hash_is_stable_and_sensitive():
+    a = sweep.parse_sweep(GRID).scenarios
+    b = sweep.parse_sweep(GRID).scenarios
+    assert sweep.config_hash(a) == sweep.config_hash(b)
+    assert sweep.config_hash(a, {"batch": 4}) != sweep.config_hash(a, {"batch": 5})
+    c = sweep.parse_sweep(GRID.replace("0.01, 0.1", "0.01, 0.2")).scenarios
+    assert sweep.config_hash(a) != sweep.config_hash(c)
+
+
+def test_missing_file():
+    with pytest.raises(sweep.SweepError, match="not found"):
+        sweep.load_sweep("/nonexistent/x.toml")
