@@ -1,0 +1,597 @@
+"""Results store: one directory per sweep run, written chunk by chunk so a run can resume.
+
+Layout of ``DIR``::
+
+    manifest.json           sweep file text, expanded configs, config hash, chunk size, package
+                            versions, JAX backend/devices, git commit, start/end times, status
+    chunks/chunk_00000.npz  the closed-loop Log of scenarios [0, batch), plus per-scenario
+                            metrics (keys ``metric.<name>``) and ``index`` (global scenario ids)
+    summary.csv             one row per scenario (see :data:`SUMMARY_METRICS`)
+
+Every file is written atomically (temporary file in the same directory, then ``os.replace``), so
+a killed run leaves only complete chunks.  Chunk ``i`` holds scenarios ``[i·batch, (i+1)·batch)``
+of the expanded sweep; the last chunk is padded to ``batch`` with copies of its last scenario (so
+every chunk has the same shape and one compile serves all) and the padding is dropped before
+writing.  Chunks are deterministic: a scenario's seed comes from its config
+(:mod:`hlip_jax.sweep`), and a chunk is always simulated with the same companions, so a resumed
+run's arrays equal an uninterrupted run's byte for byte.
+
+Resume: ``--resume`` requires the manifest's config hash (sha256 of the expanded configs and the
+chunk size) to match; finished chunks (readable, with the expected ``index``) are skipped.
+
+Metrics (per scenario, over valid pre-impact samples k, i.e. steps before any failure):
+
+* ``rms_track_err``, ``max_track_err`` [m]: distance of the robot COM c_k (x–y) to the path,
+  taken as the polyline through the reference positions r(t_j) of that scenario (the
+  step-sampled path; chord error ≈ L²/(8R), ~3 mm for 0.2 m steps on a 2 m circle).
+* ``rms_pos_err`` [m]: RMS of |c_k − r(t_k)| (time-indexed tracking error, includes lag).
+* ``final_pos_err`` [m]: |c_k − r(t_k)| at the last valid step.
+* ``emax_{x,y}_{c,p,v}``: max |e| per plane and component [m, m, m/s].
+* ``cov_{x,y}_inner`` / ``cov_{x,y}_outer``: in-sample coverage bracket of the errors [p, v] in
+  the mRPI set E of ``e⁺ = (A + BK) e + w`` with W the box of that scenario's own w samples
+  (2-state [p, v]: the c component integrates and has no bounded invariant set).
+* ``cov_{x,y}_heldout``: W and E from the first half of the steps, coverage (outer set) of the
+  errors in the second half.
+* ``qp_failures``: valid steps whose MPC QP status is not 1 (solved).
+* ``min_clearance`` [m]: min obstacle clearance over valid steps (inf without obstacles).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import datetime as _dt
+import io
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from importlib import metadata
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+from hlip_jax import sweep as sweep_mod
+
+__all__ = [
+    "StoreError", "LOG_FIELDS", "SUMMARY_METRICS", "RunResult", "run_sweep", "chunk_ranges",
+    "write_atomic", "save_npz_atomic", "read_manifest", "load_chunk", "load_log",
+    "scenario_metrics", "write_summary", "read_summary", "chunk_files",
+]
+
+MANIFEST = "manifest.json"
+SUMMARY = "summary.csv"
+CHUNK_DIR = "chunks"
+STATUS_NAMES = {0: "ok", 1: "fell", 2: "nonfinite", 3: "qp_failed"}
+
+LOG_FIELDS = ("t", "stance", "x_hlip", "x_robot", "e", "w", "u_hlip", "u_robot", "ref_pos",
+              "ref_vel", "ref_heading", "qp_status", "qp_iter", "obstacle_slack", "clearance",
+              "valid", "status", "fail_step", "A", "B", "K_gain")
+# fields with a step axis (axis 1), padded when chunks of different K are concatenated
+STEP_FIELDS = ("t", "stance", "x_hlip", "x_robot", "e", "w", "u_hlip", "u_robot", "ref_pos",
+               "ref_vel", "ref_heading", "qp_status", "qp_iter", "obstacle_slack", "clearance",
+               "valid")
+
+SUMMARY_METRICS = (
+    "steps", "rms_track_err", "max_track_err", "rms_pos_err", "final_pos_err",
+    "emax_x_c", "emax_x_p", "emax_x_v", "emax_y_c", "emax_y_p", "emax_y_v",
+    "cov_x_inner", "cov_x_outer", "cov_x_heldout", "cov_y_inner", "cov_y_outer", "cov_y_heldout",
+    "qp_failures", "min_clearance",
+)
+
+
+class StoreError(RuntimeError):
+    """A results directory cannot be used as asked (one clear line)."""
+
+
+# --------------------------------------------------------------------------------------------
+# atomic files
+
+
+def write_atomic(path, data: bytes | str) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same directory and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data.encode() if isinstance(data, str) else data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def save_npz_atomic(path, arrays: dict) -> None:
+    """``np.savez`` (uncompressed: deterministic bytes for equal arrays) written atomically."""
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    write_atomic(path, buf.getvalue())
+
+
+# --------------------------------------------------------------------------------------------
+# manifest
+
+
+def _versions() -> dict:
+    out = {"python": platform.python_version()}
+    for pkg in ("hlip_jax", "jax", "jaxlib", "numpy", "scipy", "mujoco", "mujoco-mjx", "osqp",
+                "matplotlib"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def _jax_info() -> dict:
+    try:
+        import jax
+        return {"backend": jax.default_backend(),
+                "devices": [str(d) for d in jax.devices()],
+                "x64": bool(jax.config.jax_enable_x64)}
+    except Exception as err:  # pragma: no cover - diagnostics only
+        return {"backend": "unavailable", "error": str(err)}
+
+
+def _git_commit() -> str | None:
+    here = Path(__file__).resolve().parent
+    try:
+        r = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True,
+                           text=True, timeout=5)
+        if r.returncode != 0:
+            return None
+        commit = r.stdout.strip()
+        d = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                           capture_output=True, text=True, timeout=5)
+        return commit + ("-dirty" if d.returncode == 0 and d.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def read_manifest(out_dir) -> dict:
+    """The manifest of a results directory (StoreError if absent or unreadable)."""
+    p = Path(out_dir) / MANIFEST
+    if not Path(out_dir).is_dir():
+        raise StoreError(f"{out_dir}: results directory not found")
+    if not p.is_file():
+        raise StoreError(f"{out_dir}: not a results directory (no {MANIFEST})")
+    try:
+        return json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise StoreError(f"{p}: unreadable manifest: {err}") from None
+
+
+def _write_manifest(out_dir, man: dict) -> None:
+    write_atomic(Path(out_dir) / MANIFEST, json.dumps(man, indent=1, sort_keys=False) + "\n")
+
+
+# --------------------------------------------------------------------------------------------
+# chunks
+
+
+def chunk_ranges(n: int, batch: int) -> list[tuple[int, int]]:
+    """``[(start, stop), ...]`` covering ``range(n)`` in blocks of ``batch``."""
+    return [(s, min(s + batch, n)) for s in range(0, n, batch)]
+
+
+def chunk_path(out_dir, i: int) -> Path:
+    return Path(out_dir) / CHUNK_DIR / f"chunk_{i:05d}.npz"
+
+
+def chunk_files(out_dir) -> list[Path]:
+    return sorted((Path(out_dir) / CHUNK_DIR).glob("chunk_*.npz"))
+
+
+def load_chunk(path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _chunk_ok(path: Path, start: int, stop: int) -> bool:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            idx = z["index"]
+            return idx.shape == (stop - start,) and bool(np.all(idx == np.arange(start, stop)))
+    except Exception:
+        return False
+
+
+def _log_to_arrays(log, n: int) -> dict[str, np.ndarray]:
+    """Log NamedTuple (or dict) → dict of numpy arrays, first ``n`` scenarios."""
+    d = log._asdict() if hasattr(log, "_asdict") else dict(log)
+    out = {}
+    for k in LOG_FIELDS:
+        if k not in d:
+            raise StoreError(f"closed-loop log lacks the field {k!r}")
+        out[k] = np.ascontiguousarray(np.asarray(d[k])[:n])
+    return out
+
+
+def _pad_steps(a: np.ndarray, K: int, name: str) -> np.ndarray:
+    if a.shape[1] == K:
+        return a
+    pad = [(0, 0)] * a.ndim
+    pad[1] = (0, K - a.shape[1])
+    if a.dtype == bool:
+        fill = False
+    elif np.issubdtype(a.dtype, np.floating):
+        fill = np.inf if name == "clearance" else np.nan
+    else:
+        fill = 0
+    return np.pad(a, pad, constant_values=fill)
+
+
+def load_log(out_dir, indices: Sequence[int] | None = None) -> dict[str, np.ndarray]:
+    """Concatenate the stored chunks (optionally only scenarios ``indices``, in that order).
+
+    Chunks of different step counts K are padded (valid=False, NaN, clearance inf)."""
+    files = chunk_files(out_dir)
+    if not files:
+        raise StoreError(f"{out_dir}: no chunks stored")
+    want = None if indices is None else {int(i) for i in indices}
+    parts = []
+    for f in files:
+        with np.load(f, allow_pickle=False) as z:
+            idx = z["index"]
+            sel = np.arange(idx.size) if want is None else np.flatnonzero(np.isin(idx, list(want)))
+            if sel.size == 0:
+                continue
+            parts.append({k: z[k][sel] for k in z.files})
+    if not parts:
+        raise StoreError(f"{out_dir}: none of the scenarios {sorted(want)} is stored")
+    K = max(p["t"].shape[1] for p in parts)
+    out = {k: np.concatenate([_pad_steps(p[k], K, k) if k in STEP_FIELDS else p[k]
+                              for p in parts]) for k in parts[0]}
+    if indices is not None:
+        order = {int(i): j for j, i in enumerate(out["index"])}
+        take = [order[int(i)] for i in indices if int(i) in order]
+        out = {k: v[take] for k, v in out.items()}
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# metrics
+
+
+def _seg_dist(P: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Distance of each point P (n, 2) to the polyline through R (m, 2) [same units]."""
+    if R.shape[0] == 1:
+        return np.linalg.norm(P - R[0], axis=1)
+    a, b = R[:-1], R[1:]                       # (m-1, 2)
+    ab = b - a
+    L2 = np.maximum(np.sum(ab * ab, axis=1), 1e-300)
+    ap = P[:, None, :] - a[None]               # (n, m-1, 2)
+    s = np.clip(np.sum(ap * ab[None], axis=2) / L2[None], 0.0, 1.0)
+    d = ap - s[..., None] * ab[None]
+    return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
+
+
+def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
+    """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring)."""
+    from hlip_jax import invariant as inv
+    out = {}
+    A = np.asarray(log["A"][s], np.float64)[1:, 1:]
+    B = np.asarray(log["B"][s], np.float64)[1:]
+    Kg = np.asarray(log["K_gain"][s], np.float64)
+    Kg = Kg[:, 1:] if Kg.shape[-1] == 3 else Kg
+    x = np.asarray(log["x_robot"][s], np.float64)[:, :, 1:]    # (K, 2, 2)
+    u = np.asarray(log["u_robot"][s], np.float64)
+    e = np.asarray(log["e"][s], np.float64)[:, :, 1:]
+    # w from the robot's own S2S data (same definition as the log's w, restricted to [p, v])
+    w = x[1:] - (np.einsum("ij,kpj->kpi", A, x[:-1]) + B[None, None, :] * u[:-1, :, None])
+    wmask = mask[1:] & mask[:-1]
+    nK = int(mask.sum())
+    half = nK // 2
+    for p, plane in enumerate("xy"):
+        keys = [f"cov_{plane}_inner", f"cov_{plane}_outer", f"cov_{plane}_heldout"]
+        for k in keys:
+            out[k] = math.nan
+        Acl = A + np.outer(B, Kg[p])
+        if wmask.sum() < 1 or not np.all(np.abs(np.linalg.eigvals(Acl)) < 1 - 1e-9):
+            continue
+        try:
+            W = inv.estimate_w(w[:, p], wmask, "box")
+            E = inv.mrpi(Acl, W)
+            c = inv.coverage(E, e[:, p], mask)
+            out[keys[0]], out[keys[1]] = c.inner, c.outer
+            tr = wmask & (np.arange(wmask.size) + 1 < half)
+            te = mask & (np.arange(mask.size) >= half)
+            if tr.sum() >= 1 and te.sum() >= 1:
+                Wt = inv.estimate_w(w[:, p], tr, "box")
+                Et = inv.mrpi(Acl, Wt)
+                out[keys[2]] = inv.coverage(Et, e[:, p], te).outer
+        except Exception:   # degenerate W (e.g. a single sample): leave NaN
+            continue
+    return out
+
+
+def scenario_metrics(log: dict, s: int, with_coverage: bool = True) -> dict:
+    """Summary metrics of scenario ``s`` of a log dict (see the module docstring)."""
+    valid = np.asarray(log["valid"][s], bool)
+    mask = np.cumprod(valid).astype(bool)       # steps before any failure
+    n = int(mask.sum())
+    m = {k: math.nan for k in SUMMARY_METRICS}
+    m["steps"] = n
+    m["qp_failures"] = int(np.sum(mask & (np.asarray(log["qp_status"][s]) != 1)))
+    clr = np.asarray(log["clearance"][s], np.float64)[mask]
+    m["min_clearance"] = float(np.min(clr)) if clr.size else math.inf
+    if n == 0:
+        return m
+    c = np.asarray(log["x_robot"][s], np.float64)[mask][:, :, 0]   # (n, 2) COM x, y
+    r = np.asarray(log["ref_pos"][s], np.float64)[mask]
+    d_time = np.linalg.norm(c - r, axis=1)
+    d_path = _seg_dist(c, r)
+    m["rms_track_err"] = float(np.sqrt(np.mean(d_path ** 2)))
+    m["max_track_err"] = float(np.max(d_path))
+    m["rms_pos_err"] = float(np.sqrt(np.mean(d_time ** 2)))
+    m["final_pos_err"] = float(d_time[-1])
+    e = np.abs(np.asarray(log["e"][s], np.float64)[mask])            # (n, 2, 3)
+    for p, plane in enumerate("xy"):
+        for j, comp in enumerate("cpv"):
+            m[f"emax_{plane}_{comp}"] = float(np.max(e[:, p, j]))
+    if with_coverage:
+        m.update(_coverage_metrics(log, s, mask))
+    return m
+
+
+# --------------------------------------------------------------------------------------------
+# summary.csv
+
+
+def _cell(v) -> str:
+    if isinstance(v, bool):
+        return str(v).lower()
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    return str(v)
+
+
+def summary_columns(configs: list[dict]) -> list[str]:
+    swept = []
+    for c in configs:
+        for k in c.get("swept", {}):
+            if k != "path" and k not in swept:
+                swept.append(k)
+    return (["index", "name", "path", "shape", "plant", "seed"] + swept
+            + ["status", "fail_step"] + list(SUMMARY_METRICS))
+
+
+def write_summary(out_dir) -> Path:
+    """Write ``summary.csv`` from the manifest's configs and the stored chunk metrics."""
+    man = read_manifest(out_dir)
+    configs = man["configs"]
+    cols = summary_columns(configs)
+    rows: dict[int, dict] = {}
+    for f in chunk_files(out_dir):
+        z = load_chunk(f)
+        for j, i in enumerate(z["index"]):
+            i = int(i)
+            cfg = configs[i]
+            row = {"index": i, "name": cfg["name"], "path": cfg["swept"].get("path", ""),
+                   "shape": cfg["path"]["shape"], "plant": cfg["plant"], "seed": cfg["seed"]}
+            row.update({k: v for k, v in cfg["swept"].items() if k != "path"})
+            st = int(z["status"][j])
+            row["status"] = STATUS_NAMES.get(st, str(st))
+            row["fail_step"] = int(z["fail_step"][j])
+            for k in SUMMARY_METRICS:
+                v = z[f"metric.{k}"][j]
+                row[k] = int(v) if k in ("steps", "qp_failures") else float(v)
+            rows[i] = row
+    buf = io.StringIO()
+    wr = csv.writer(buf, lineterminator="\n")
+    wr.writerow(cols)
+    for i in sorted(rows):
+        wr.writerow([_cell(rows[i].get(c, "")) for c in cols])
+    p = Path(out_dir) / SUMMARY
+    write_atomic(p, buf.getvalue())
+    return p
+
+
+def read_summary(out_dir) -> list[dict]:
+    """Rows of ``summary.csv`` as dicts (numbers parsed where they parse)."""
+    p = Path(out_dir) / SUMMARY
+    if not p.is_file():
+        raise StoreError(f"{out_dir}: no {SUMMARY}")
+    rows = []
+    with open(p, newline="") as fh:
+        for r in csv.DictReader(fh):
+            out = {}
+            for k, v in r.items():
+                try:
+                    out[k] = int(v)
+                except ValueError:
+                    try:
+                        out[k] = float(v)
+                    except ValueError:
+                        out[k] = v
+            rows.append(out)
+    return rows
+
+
+# --------------------------------------------------------------------------------------------
+# running
+
+
+@dataclasses.dataclass
+class RunResult:
+    out_dir: Path
+    n_scenarios: int
+    n_chunks: int
+    chunks_run: int          # simulated in this call
+    chunks_skipped: int      # already present (resume)
+    complete: bool
+    seconds: float
+
+
+class Progress:
+    """Plain-text progress on a stream: scenarios done/total, rate, ETA."""
+
+    def __init__(self, total: int, label: str, stream=None, enabled: bool = True):
+        self.total, self.label, self.enabled = total, label, enabled
+        self.stream = stream if stream is not None else sys.stderr
+        self.t0 = time.monotonic()
+        self.done0 = None
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+
+    def update(self, done: int, note: str = "") -> None:
+        if not self.enabled:
+            return
+        if self.done0 is None:
+            self.done0, self.t0 = done, time.monotonic()
+            rate_s, eta_s = "-", "-"
+        else:
+            dt = time.monotonic() - self.t0
+            rate = (done - self.done0) / dt if dt > 0 else 0.0
+            rate_s = f"{rate:.2f}/s" if rate else "-"
+            eta_s = f"{(self.total - done) / rate:.0f}s" if rate > 0 else "-"
+        pct = 100.0 * done / max(self.total, 1)
+        msg = (f"[{self.label}] {done}/{self.total} scenarios ({pct:3.0f}%)  rate {rate_s}  "
+               f"ETA {eta_s}{'  ' + note if note else ''}")
+        if self.tty:
+            self.stream.write("\r" + msg.ljust(79))
+            if done >= self.total:
+                self.stream.write("\n")
+        else:
+            self.stream.write(msg + "\n")
+        self.stream.flush()
+
+
+def _default_simulate():
+    from hlip_jax import rollout
+    return rollout.simulate
+
+
+def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resume: bool = False,
+              overwrite: bool = False, simulate: Callable | None = None,
+              max_chunks: int | None = None, progress: bool = True, stream=None,
+              with_coverage: bool = True) -> RunResult:
+    """Simulate every scenario of ``sw`` chunk by chunk into ``out_dir``.
+
+    Args:
+      sw: the validated sweep (:func:`hlip_jax.sweep.load_sweep`).
+      out_dir: results directory (created).
+      batch: scenarios per chunk (one ``simulate`` call); default 16 on CPU, 1024 otherwise,
+        capped at the number of scenarios.  On resume, the manifest's value unless given.
+      resume: skip chunks already stored (config hash must match).
+      overwrite: discard an existing run in ``out_dir`` (its manifest, chunks, summary).
+      simulate: ``configs -> Log`` (default :func:`hlip_jax.rollout.simulate`).
+      max_chunks: stop after simulating this many chunks (interruptions, tests).
+      with_coverage: compute the invariant-set coverage metrics per scenario.
+    Raises:
+      StoreError: the directory holds another run (or a different config, on resume).
+    """
+    out = Path(out_dir)
+    configs = list(sw.scenarios)
+    n = len(configs)
+    if n == 0:
+        raise StoreError("the sweep expands to no scenarios")
+    existing = (out / MANIFEST).is_file()
+    old = read_manifest(out) if existing else None
+    if batch is None:
+        if resume and old is not None:
+            batch = int(old["batch"])
+        else:
+            try:
+                import jax
+                batch = 16 if jax.default_backend() == "cpu" else 1024
+            except Exception:
+                batch = 16
+    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+        raise StoreError(f"--batch: expected an integer >= 1, got {batch!r}")
+    batch = min(batch, n)
+    chash = sweep_mod.config_hash(configs, {"batch": batch})
+
+    if existing and not (resume or overwrite):
+        state = "complete" if old.get("status") == "complete" else "incomplete"
+        raise StoreError(f"{out} already holds a run ({state}); pass --resume to continue it, "
+                         f"--overwrite to discard it, or choose another --out")
+    if existing and resume and old.get("config_hash") != chash:
+        why = ("the chunk size differs (manifest batch "
+               f"{old.get('batch')}, now {batch})" if old.get("batch") != batch
+               else "the expanded sweep config differs")
+        raise StoreError(f"refusing to resume {out}: {why}; config hash {chash[:12]} vs "
+                         f"{str(old.get('config_hash'))[:12]} in {MANIFEST}")
+    if existing and overwrite and not resume:
+        for f in chunk_files(out):
+            f.unlink()
+        for name in (SUMMARY, MANIFEST):
+            (out / name).unlink(missing_ok=True)
+        old = None
+    (out / CHUNK_DIR).mkdir(parents=True, exist_ok=True)
+
+    ranges = chunk_ranges(n, batch)
+    man = dict(old) if (resume and old) else {
+        "format": 1,
+        "sweep_name": sw.name,
+        "sweep_file": sw.source,
+        "sweep_text": sw.text,
+        "description": sw.description,
+        "axes": [{"fields": list(a.fields), "values": [list(v) for v in a.values],
+                  "zipped": a.zipped} for a in sw.axes],
+        "paths": list(sw.paths),
+        "n_scenarios": n,
+        "total_before_limit": sw.total,
+        "batch": batch,
+        "n_chunks": len(ranges),
+        "config_hash": chash,
+        "configs": [sweep_mod.config_to_dict(c) for c in configs],
+    }
+    man.update({"versions": _versions(), "jax": _jax_info(), "git_commit": _git_commit(),
+                "start_time": man.get("start_time") or _now(), "end_time": None,
+                "status": "running"})
+    man.setdefault("resumed_at", [])
+    if resume and old:
+        man["resumed_at"].append(_now())
+    _write_manifest(out, man)
+
+    sim = simulate if simulate is not None else _default_simulate()
+    t0 = time.monotonic()
+    bar = Progress(n, sw.name, stream=stream, enabled=progress)
+    done = sum(b - a for i, (a, b) in enumerate(ranges) if _chunk_ok(chunk_path(out, i), a, b))
+    bar.update(done, "resuming" if done else "compiling")
+    ran = skipped = 0
+    for i, (a, b) in enumerate(ranges):
+        p = chunk_path(out, i)
+        if _chunk_ok(p, a, b):
+            skipped += 1
+            continue
+        if max_chunks is not None and ran >= max_chunks:
+            break
+        chunk_cfgs = configs[a:b] + [configs[b - 1]] * (batch - (b - a))
+        log = sim(chunk_cfgs)
+        arrays = _log_to_arrays(log, b - a)
+        arrays["index"] = np.arange(a, b, dtype=np.int64)
+        mets = [scenario_metrics(arrays, s, with_coverage) for s in range(b - a)]
+        for k in SUMMARY_METRICS:
+            arrays[f"metric.{k}"] = np.asarray([m[k] for m in mets], np.float64)
+        save_npz_atomic(p, arrays)
+        ran += 1
+        done += b - a
+        bar.update(done)
+    complete = all(_chunk_ok(chunk_path(out, i), a, b) for i, (a, b) in enumerate(ranges))
+    man["status"] = "complete" if complete else "incomplete"
+    man["end_time"] = _now()
+    man["seconds"] = man.get("seconds", 0.0) + (time.monotonic() - t0)
+    _write_manifest(out, man)
+    if complete:
+        write_summary(out)
+    return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0)

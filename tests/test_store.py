@@ -1,0 +1,259 @@
+"""Results store (hlip_jax.store): chunked atomic writes, manifest, summary, resume.
+
+Uses a small fake closed loop (``fake_simulate``) that produces a Log with the rollout
+contract's fields from the H-LIP S2S map, deterministic in each config's seed; so these tests
+check the store, not the controller, and run in well under a second per sweep.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+
+from hlip_jax import hlip, store, sweep
+
+TINY = """
+name = "tiny"
+[base]
+duration = 4.0
+seed = 3
+[base.disturbance]
+noise_v = 0.02
+[[base.obstacles]]
+x = 1.0
+y = 1.0
+radius = 0.2
+[[paths]]
+shape = "circle"
+[[paths]]
+shape = "line"
+[grid.product]
+"gain.type" = ["deadbeat", "lqr"]
+"mpc.alpha" = [0.01, 0.1]
+"""
+
+
+class FakeLog(NamedTuple):
+    t: np.ndarray
+    stance: np.ndarray
+    x_hlip: np.ndarray
+    x_robot: np.ndarray
+    e: np.ndarray
+    w: np.ndarray
+    u_hlip: np.ndarray
+    u_robot: np.ndarray
+    ref_pos: np.ndarray
+    ref_vel: np.ndarray
+    ref_heading: np.ndarray
+    qp_status: np.ndarray
+    qp_iter: np.ndarray
+    obstacle_slack: np.ndarray
+    clearance: np.ndarray
+    valid: np.ndarray
+    status: np.ndarray
+    fail_step: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    K_gain: np.ndarray
+
+
+def fake_simulate(configs, chunk=None, calls=None):
+    """A Log of the rollout contract: x⁺ = A x + B u + w per plane with the deadbeat law.
+
+    The H-LIP walks at 0.3 m/s along x (u = v̄T + K x on [p, v]); the robot adds uniform w
+    (half-width from the config's noise) seeded by the config's seed.  A scenario named with
+    ``gain.type=lqr`` and ``mpc.alpha=0.1`` is marked fallen at step 3 (a failure to report).
+    """
+    if calls is not None:
+        calls.append(len(configs))
+    S = len(configs)
+    Ks = [math.ceil(c.duration / (c.hlip.t_ssp + c.hlip.t_dsp)) for c in configs]
+    K = max(Ks)
+    z = lambda *sh, dt=np.float64: np.zeros((S, K) + sh, dt)  # noqa: E731
+    log = {k: z() for k in ("t", "ref_heading", "obstacle_slack", "clearance")}
+    log.update(stance=z(dt=np.int32), qp_status=np.ones((S, K), np.int32), qp_iter=z(dt=np.int32),
+               x_hlip=z(2, 3), x_robot=z(2, 3), e=z(2, 3), w=z(2, 3), u_hlip=z(2),
+               u_robot=z(2), ref_pos=z(2), ref_vel=z(2), valid=z(dt=bool))
+    status = np.zeros(S, np.int32)
+    fail = -np.ones(S, np.int32)
+    A_all, B_all, K_all = np.zeros((S, 3, 3)), np.zeros((S, 3)), np.zeros((S, 2, 3))
+    for s, c in enumerate(configs):
+        h = c.hlip
+        T = h.t_ssp + h.t_dsp
+        A, B = (np.asarray(m) for m in hlip.s2s_matrices(h.z0, h.t_ssp, h.t_dsp))
+        Kd = np.concatenate([[0.0], np.asarray(hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp))])
+        A_all[s], B_all[s], K_all[s] = A, B, Kd
+        rng = np.random.default_rng(c.seed)
+        xh = np.zeros((2, 3))
+        xr = np.zeros((2, 3))
+        nv = max(c.disturbance.noise_v, 1e-3)
+        for k in range(Ks[s]):
+            t = (k + 1) * T
+            uh = np.array([0.3 * T, 0.0]) + xh @ Kd
+            ur = uh + (xr - xh) @ Kd
+            log["t"][s, k] = t
+            log["stance"][s, k] = k % 2
+            log["x_hlip"][s, k], log["x_robot"][s, k] = xh, xr
+            log["e"][s, k] = xr - xh
+            log["u_hlip"][s, k], log["u_robot"][s, k] = uh, ur
+            log["ref_pos"][s, k] = [0.3 * t, 0.05 * math.sin(t)]
+            log["ref_vel"][s, k] = [0.3, 0.05 * math.cos(t)]
+            log["clearance"][s, k] = math.hypot(xr[0, 0] - 1.0, xr[1, 0] - 1.0) - 0.2
+            w = np.zeros((2, 3))                                   # (plane, [c, p, v])
+            w[:, 1] = rng.uniform(-nv / 4, nv / 4, 2)
+            w[:, 2] = rng.uniform(-nv, nv, 2)
+            log["w"][s, k] = w
+            xh = xh @ A.T + np.outer(uh, B)
+            xr = xr @ A.T + np.outer(ur, B) + w
+            log["valid"][s, k] = True
+        if c.swept.get("gain.type") == "lqr" and c.swept.get("mpc.alpha") == 0.1:
+            status[s], fail[s] = 1, 3
+            log["valid"][s, 3:] = False
+    return FakeLog(**log, status=status, fail_step=fail, A=A_all, B=B_all, K_gain=K_all)
+
+
+def _tiny(**kw):
+    return sweep.parse_sweep(TINY, **kw)
+
+
+def _arrays(out: Path) -> dict:
+    return {f.name: store.load_chunk(f) for f in store.chunk_files(out)}
+
+
+def test_run_writes_manifest_chunks_summary(tmp_path):
+    sw = _tiny()
+    calls = []
+    res = store.run_sweep(sw, tmp_path / "r", batch=3, progress=False,
+                          simulate=lambda c: fake_simulate(c, calls=calls))
+    assert res.complete and res.n_chunks == 3 and res.chunks_run == 3
+    assert calls == [3, 3, 3], "last chunk padded to the batch size"
+    man = json.loads((tmp_path / "r" / "manifest.json").read_text())
+    assert man["sweep_text"] == TINY and man["n_scenarios"] == 8 and man["batch"] == 3
+    assert man["status"] == "complete" and man["start_time"] and man["end_time"]
+    assert "jax" in man["versions"] and man["jax"]["backend"]
+    assert len(man["configs"]) == 8 and man["configs"][0]["name"] == sw.scenarios[0].name
+    files = store.chunk_files(tmp_path / "r")
+    assert [f.name for f in files] == ["chunk_00000.npz", "chunk_00001.npz", "chunk_00002.npz"]
+    last = store.load_chunk(files[-1])
+    assert list(last["index"]) == [6, 7] and last["x_robot"].shape[0] == 2
+    assert not list((tmp_path / "r").rglob("*.tmp")), "no temporaries left"
+
+    with open(tmp_path / "r" / "summary.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 8
+    for col in ("name", "path", "shape", "gain.type", "mpc.alpha", "status", "rms_track_err",
+                "max_track_err", "final_pos_err", "emax_x_p", "emax_y_v", "cov_x_inner",
+                "cov_y_outer", "cov_x_heldout", "qp_failures", "min_clearance"):
+        assert col in rows[0], col
+    fell = [r for r in rows if r["status"] == "fell"]
+    assert len(fell) == 2 and all(r["steps"] == "3" for r in fell)
+    ok = [r for r in rows if r["status"] == "ok"]
+    for r in ok:
+        # deadbeat A_cl with box W: in-sample coverage of the outer set is 1 by construction
+        assert float(r["cov_x_outer"]) == 1.0 and float(r["cov_y_outer"]) == 1.0
+        assert 0.0 <= float(r["cov_x_heldout"]) <= 1.0
+        assert float(r["rms_track_err"]) <= float(r["max_track_err"])
+
+
+def test_metrics_against_hand_computation():
+    log = fake_simulate(_tiny().scenarios[:1])._asdict()
+    m = store.scenario_metrics(log, 0, with_coverage=False)
+    c = log["x_robot"][0][:, :, 0]
+    r = log["ref_pos"][0]
+    d = np.linalg.norm(c - r, axis=1)
+    # exact formulas, float64: 1e-12 relative
+    assert m["rms_pos_err"] == pytest.approx(np.sqrt(np.mean(d ** 2)), rel=1e-12)
+    assert m["final_pos_err"] == pytest.approx(d[-1], rel=1e-12)
+    assert m["emax_y_v"] == pytest.approx(np.abs(log["e"][0][:, 1, 2]).max(), rel=1e-12)
+    assert m["min_clearance"] == pytest.approx(log["clearance"][0].min(), rel=1e-12)
+    # the distance to the polyline never exceeds the distance to the time-indexed point
+    assert m["max_track_err"] <= d.max() + 1e-15
+
+
+def test_polyline_distance():
+    R = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+    P = np.array([[0.5, 0.2], [1.3, 0.5], [2.0, 2.0], [-1.0, 0.0]])
+    np.testing.assert_allclose(store._seg_dist(P, R), [0.2, 0.3, math.sqrt(2.0), 1.0],
+                               rtol=1e-12)
+
+
+def test_kill_and_resume_is_identical(tmp_path):
+    sw = _tiny()
+    ref = tmp_path / "ref"
+    store.run_sweep(sw, ref, batch=3, progress=False, simulate=fake_simulate)
+    part = tmp_path / "part"
+    r1 = store.run_sweep(sw, part, batch=3, progress=False, simulate=fake_simulate, max_chunks=1)
+    assert not r1.complete and r1.chunks_run == 1
+    assert json.loads((part / "manifest.json").read_text())["status"] == "incomplete"
+    assert not (part / "summary.csv").exists()
+
+    # an interruption inside the second chunk (exception raised by the closed loop)
+    def boom(cfgs):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        store.run_sweep(sw, part, resume=True, progress=False, simulate=boom)
+    calls = []
+    r2 = store.run_sweep(sw, part, resume=True, progress=False,
+                         simulate=lambda c: fake_simulate(c, calls=calls))
+    assert r2.complete and r2.chunks_skipped == 1 and r2.chunks_run == 2 and calls == [3, 3]
+    a, b = _arrays(ref), _arrays(part)
+    assert a.keys() == b.keys()
+    for f in a:
+        assert a[f].keys() == b[f].keys()
+        for k in a[f]:
+            assert a[f][k].tobytes() == b[f][k].tobytes(), (f, k)
+    assert (ref / "summary.csv").read_bytes() == (part / "summary.csv").read_bytes()
+
+
+def test_resume_refuses_other_config(tmp_path):
+    out = tmp_path / "r"
+    store.run_sweep(_tiny(), out, batch=3, progress=False, simulate=fake_simulate, max_chunks=1)
+    other = sweep.parse_sweep(TINY.replace("0.01, 0.1", "0.01, 0.2"))
+    with pytest.raises(store.StoreError, match="refusing to resume.*config differs"):
+        store.run_sweep(other, out, resume=True, progress=False, simulate=fake_simulate)
+    with pytest.raises(store.StoreError, match="chunk size differs"):
+        store.run_sweep(_tiny(), out, batch=4, resume=True, progress=False, simulate=fake_simulate)
+    with pytest.raises(store.StoreError, match="already holds a run"):
+        store.run_sweep(_tiny(), out, batch=3, progress=False, simulate=fake_simulate)
+    res = store.run_sweep(other, out, batch=3, overwrite=True, progress=False, simulate=fake_simulate)
+    assert res.complete and res.chunks_run == 3
+
+
+def test_load_log_pads_and_selects(tmp_path):
+    text = TINY.replace('[[paths]]\nshape = "line"', '[[paths]]\nshape = "line"\n[paths.overrides]\nduration = 6.0')
+    out = tmp_path / "r"
+    store.run_sweep(sweep.parse_sweep(text), out, batch=4, progress=False, simulate=fake_simulate)
+    log = store.load_log(out)
+    assert log["t"].shape == (8, 15) and log["x_robot"].shape == (8, 15, 2, 3)
+    assert not log["valid"][:4, 10:].any() and np.isnan(log["t"][0, 12])
+    assert np.isinf(log["clearance"][0, 12])
+    sub = store.load_log(out, [6, 1])
+    assert list(sub["index"]) == [6, 1]
+    np.testing.assert_array_equal(sub["x_robot"][1], log["x_robot"][1])
+
+
+def test_atomic_write_leaves_old_file_on_failure(tmp_path, monkeypatch):
+    p = tmp_path / "f.txt"
+    store.write_atomic(p, "old")
+
+    def bad_replace(a, b):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(store.os, "replace", bad_replace)
+    with pytest.raises(OSError):
+        store.write_atomic(p, "new")
+    assert p.read_text() == "old" and list(tmp_path.iterdir()) == [p]
+
+
+def test_missing_results_dir(tmp_path):
+    with pytest.raises(store.StoreError, match="not found"):
+        store.read_manifest(tmp_path / "nope")
+    with pytest.raises(store.StoreError, match="not a results directory"):
+        store.read_manifest(tmp_path)
