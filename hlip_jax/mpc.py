@@ -83,8 +83,37 @@ def prediction_matrices(A, B, N: int):
     return Phi, jnp.transpose(Gamma, (0, 2, 1))
 
 
+class Condensed(NamedTuple):
+    """Affine maps of the decision vector V (per plane, N entries) to the plan:
+    X = free + Γ̄ V (states x_1..x_N) and U = free_u + Ω V (steps u_0..u_{N-1})."""
+    free: jax.Array     # (2, N, 3)
+    gamma: jax.Array    # (N, 3, N)
+    free_u: jax.Array   # (2, N)
+    omega: jax.Array    # (N, N)
+
+
+def condense(A, B, x0, N: int) -> Condensed:
+    """Pre-stabilised condensing.  The H-LIP is unstable (eigenvalue ≈ e^{λT_S}), so the plain
+    map U ↦ X has entries growing like A^N and a Hessian with condition number ~1e6 even for
+    N = 5 — enough to stall ADMM and to make float32 useless.  Writing u_j = K̄ x_j + v_j with
+    K̄ the 3-state deadbeat gain (Ā = A + B K̄ nilpotent: Ā³ = 0) gives bounded maps
+      x_j = Ā^j x_0 + Σ_{i<j} Ā^{j−1−i} B v_i,
+      u_j = K̄ Ā^j x_0 + v_j + Σ_{i<j} K̄ Ā^{j−1−i} B v_i,
+    the same problem in better coordinates (V ↦ U is unit lower-triangular, so invertible)."""
+    from hlip_jax.hlip import place_gain_ackermann
+    Kb = place_gain_ackermann(A, B)
+    Ab = A + jnp.outer(B, Kb)
+    Phi, Gam = prediction_matrices(Ab, B, N)                       # (N,3,3), (N,3,N)
+    free = jnp.einsum("jab,pb->pja", Phi, x0)                      # x_1..x_N
+    Phi0 = jnp.concatenate([jnp.eye(3, dtype=A.dtype)[None], Phi[:-1]])   # Ā^0..Ā^{N-1}
+    free_u = jnp.einsum("a,jab,pb->pj", Kb, Phi0, x0)
+    Gam0 = jnp.concatenate([jnp.zeros((1, 3, N), A.dtype), Gam[:-1]])     # x_0..x_{N-1} maps
+    omega = jnp.eye(N, dtype=A.dtype) + jnp.einsum("a,jan->jn", Kb, Gam0)
+    return Condensed(free=free, gamma=Gam, free_u=free_u, omega=omega)
+
+
 def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c):
-    """The condensed QP (P, q, A, l, u) in the decision vector z described in the module doc.
+    """The condensed QP (P, q, A, l, u) in z = [V^x, V^y, s] (see :func:`condense`).
 
     Args:
       x0: (2, 3) current state per plane (x plane, y plane).
@@ -94,36 +123,38 @@ def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c):
     N = preview.pos.shape[0]
     O = params.obstacles.shape[0]
     dt = x0.dtype
-    Phi, Gam = prediction_matrices(params.A, params.B, N)
-    free = jnp.einsum("jab,pb->pja", Phi, x0)                     # (2, N, 3) free response
-    Gc, Gv = Gam[:, 0, :], Gam[:, 2, :]                            # (N, N) position / velocity rows
+    cd = condense(params.A, params.B, x0, N)
+    free, Om = cd.free, cd.omega
+    Gc, Gv = cd.gamma[:, 0, :], cd.gamma[:, 2, :]                  # (N, N) position / velocity rows
     n = 2 * N + O
 
     # cost ½ zᵀ P z + qᵀ z  (factor 2 from the squares)
-    Hp = 2.0 * (params.w_pos * Gc.T @ Gc + params.w_vel * Gv.T @ Gv + params.alpha * jnp.eye(N, dtype=dt))
+    Hp = 2.0 * (params.w_pos * Gc.T @ Gc + params.w_vel * Gv.T @ Gv + params.alpha * Om.T @ Om)
     P = jnp.zeros((n, n), dt)
     P = P.at[:N, :N].set(Hp).at[N:2 * N, N:2 * N].set(Hp)
     P = P.at[2 * N:, 2 * N:].set(1e-6 * jnp.eye(O, dtype=dt))
     ref_err_c = free[:, :, 0] - preview.pos.T                      # (2, N)
     ref_err_v = free[:, :, 2] - preview.vel.T
-    qx = 2.0 * (params.w_pos * Gc.T @ ref_err_c.T + params.w_vel * Gv.T @ ref_err_v.T)  # (N, 2)
+    qx = 2.0 * (params.w_pos * Gc.T @ ref_err_c.T + params.w_vel * Gv.T @ ref_err_v.T
+                + params.alpha * Om.T @ cd.free_u.T)                # (N, 2)
     q = jnp.concatenate([qx[:, 0], qx[:, 1], params.obstacle_weight * jnp.ones((O,), dt)])
 
-    # step length / width rows, rotated into the heading θ_j
+    # step length / width rows on U = free_u + Ω V, rotated into the heading θ_j
     cth, sth = jnp.cos(preview.heading), jnp.sin(preview.heading)
-    eye = jnp.eye(N, dtype=dt)
     zO = jnp.zeros((N, O), dt)
-    A_len = jnp.concatenate([eye * cth[:, None], eye * sth[:, None], zO], axis=1)
-    A_wid = jnp.concatenate([-eye * sth[:, None], eye * cth[:, None], zO], axis=1)
+    A_len = jnp.concatenate([Om * cth[:, None], Om * sth[:, None], zO], axis=1)
+    A_wid = jnp.concatenate([-Om * sth[:, None], Om * cth[:, None], zO], axis=1)
+    len0 = cth * cd.free_u[0] + sth * cd.free_u[1]
+    wid0 = -sth * cd.free_u[0] + cth * cd.free_u[1]
     # σ_j = +1 when step j places the left foot, i.e. stance_j = right; stance alternates
     stance = (stance0 + jnp.arange(N)) % 2
     sigma = jnp.where(stance == 1, 1.0, -1.0).astype(dt)
     ones = jnp.ones((N,), dt)
-    l_len, u_len = params.length_min * ones, params.length_max * ones
-    l_wid = jnp.where(sigma > 0, params.width_min, -params.width_max) * ones
-    u_wid = jnp.where(sigma > 0, params.width_max, -params.width_min) * ones
+    l_len, u_len = params.length_min * ones - len0, params.length_max * ones - len0
+    l_wid = jnp.where(sigma > 0, params.width_min, -params.width_max) * ones - wid0
+    u_wid = jnp.where(sigma > 0, params.width_max, -params.width_min) * ones - wid0
 
-    # obstacles: n_{jo}·(c_{j+1} − o) + s_o ≥ r_o, c_{j+1} = free_c + Gc U (per plane)
+    # obstacles: n_{jo}·(c_{j+1} − o) + s_o ≥ r_o, c_{j+1} = free_c + Gc V (per plane)
     centre = params.obstacles[:, :2]                                # (O, 2)
     diff = prev_c[:, None, :] - centre[None, :, :]                  # (N, O, 2)
     dist = jnp.linalg.norm(diff, axis=-1, keepdims=True)
@@ -147,6 +178,13 @@ def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c):
     return P, q, Aq, lq, uq
 
 
+def decode(params: MPCParams, x0, z, N: int):
+    """Steps u_0..u_{N-1} (N, 2) from the QP variable z."""
+    cd = condense(params.A, params.B, x0, N)
+    V = jnp.stack([z[:N], z[N:2 * N]])                              # (2, N)
+    return (cd.free_u + V @ cd.omega.T).T
+
+
 def predict(params: MPCParams, x0, u):
     """Predicted states x_1..x_N (N, 2, 3) from x0 (2, 3) and steps u (N, 2)."""
     Phi, Gam = prediction_matrices(params.A, params.B, u.shape[0])
@@ -159,7 +197,7 @@ def solve(params: MPCParams, x0, preview: Preview, stance0, prev_c, settings: qp
     N = preview.pos.shape[0]
     P, q, Aq, lq, uq = build_qp(params, x0, preview, stance0, prev_c)
     sol = qp.solve(P, q, Aq, lq, uq, settings=settings, warm_start=warm_start)
-    u = jnp.stack([sol.x[:N], sol.x[N:2 * N]], axis=-1)
+    u = decode(params, x0, sol.x, N)
     slack = jnp.max(sol.x[2 * N:], initial=0.0)
     return Plan(u=u, states=predict(params, x0, u), slack=slack, z=sol.x, y=sol.y,
                 status=sol.status, iterations=sol.iterations)

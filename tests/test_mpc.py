@@ -140,7 +140,7 @@ def test_condensed_equals_noncondensed(seed):
     prev_c = prev.pos
     P, q, A, l, u = mpc.build_qp(params, x0, prev, stance0, prev_c)
     z = _osqp(P, q, A, l, u)
-    u_c = np.stack([z[:N], z[N:2 * N]], -1)
+    u_c = np.asarray(mpc.decode(params, x0, jnp.asarray(z), N))
     u_ref, X_ref, _ = _noncondensed(params, x0, prev, stance0, prev_c)
     np.testing.assert_allclose(u_c, u_ref, atol=TOL)
     np.testing.assert_allclose(np.asarray(mpc.predict(params, x0, jnp.asarray(u_c))), X_ref, atol=TOL)
@@ -159,7 +159,7 @@ def test_condensed_with_obstacles(seed):
     P, q, A, l, u = mpc.build_qp(params, x0, prev, seed % 2, jnp.asarray(prev_c))
     z = _osqp(P, q, A, l, u)
     u_ref, X_ref, s_ref = _noncondensed(params, x0, prev, seed % 2, prev_c)
-    np.testing.assert_allclose(np.stack([z[:N], z[N:2 * N]], -1), u_ref, atol=TOL)
+    np.testing.assert_allclose(np.asarray(mpc.decode(params, x0, jnp.asarray(z), N)), u_ref, atol=TOL)
     np.testing.assert_allclose(z[2 * N:], s_ref, atol=TOL)
     # the linearised half-plane keeps every planned COM outside the disc (slack is zero here)
     X = np.asarray(mpc.predict(params, x0, jnp.asarray(u_ref)))
@@ -186,7 +186,9 @@ def test_heading_90_swaps_length_and_width():
     N = 3
     prev = mpc.Preview(jnp.zeros((N, 2)), jnp.zeros((N, 2)), jnp.full((N,), np.pi / 2))
     _, _, A, l, u = mpc.build_qp(params, jnp.zeros((2, 3)), prev, 1, jnp.zeros((N, 2)))
-    A = np.asarray(A)
+    # rows act on V; map them back to U (U = free_u + Ω V, and free_u = 0 at x0 = 0)
+    om = np.asarray(mpc.condense(params.A, params.B, jnp.zeros((2, 3)), N).omega)
+    A = np.asarray(A)[:, :2 * N] @ np.kron(np.eye(2), np.linalg.inv(om))
     np.testing.assert_allclose(A[:N, :N], 0.0, atol=1e-15)              # length ignores u^x
     np.testing.assert_allclose(A[:N, N:2 * N], np.eye(N), atol=1e-15)   # ... and is u^y
     np.testing.assert_allclose(A[N:2 * N, :N], -np.eye(N), atol=1e-15)  # width is −u^x
@@ -209,3 +211,4 @@ def test_admm_solution_matches_osqp():
     plan = mpc.solve(params, x0, prev, 0, prev_c, settings)
     assert int(plan.status) == qp.SOLVED
     np.testing.assert_allclose(np.asarray(plan.z), ref, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(plan.u), np.asarray(mpc.decode(params, x0, jnp.asarray(ref), N)), atol=1e-5)

@@ -1,0 +1,49 @@
+"""The step-level interface between the closed loop and whatever executes the steps.
+
+One *walking step* runs from one pre-impact instant SSP⁻_k to the next SSP⁻_{k+1}:
+at SSP⁻_k the swing foot lands (the step u_k, already decided, is placed), then DSP, then SSP
+on the new stance foot while the other foot swings towards the next step u_{k+1}.  The closed
+loop (:mod:`hlip_jax.rollout`) gives the plant the H-LIP's nominal motion over that interval
+and the stepping gain; the plant decides the robot's own next step by the stepping law
+
+    u_robot = u_HLIP + K (x_robot − x_HLIP)            (per plane, x = [c, p, v])
+
+(a discrete evaluation at SSP⁻_{k+1} for the H-LIP plant, continuously during SSP for Cassie)
+and returns its state at SSP⁻_{k+1}.
+
+A plant is any object with
+
+    init(params, x0: (2, 3), u0: (2,), stance0, key) -> state
+    step(params, state, cmd: StepCommand) -> (state, StepResult)
+
+both pure, jit- and vmap-able; ``params`` is the plant's per-scenario pytree (built by the
+plant's ``make_params`` from a :class:`hlip_jax.config.ScenarioConfig`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+
+
+class StepCommand(NamedTuple):
+    """What the closed loop tells the plant for the step SSP⁻_k → SSP⁻_{k+1}."""
+    t: jax.Array            # time of SSP⁻_k [s]
+    stance: jax.Array       # stance foot of the SSP that ended at SSP⁻_k (0 left, 1 right)
+    x_hlip: jax.Array       # (2, 3) H-LIP state at SSP⁻_k
+    u_hlip: jax.Array       # (2,) H-LIP step placed at SSP⁻_k [m]
+    x_hlip_next: jax.Array  # (2, 3) H-LIP state at SSP⁻_{k+1}
+    u_hlip_next: jax.Array  # (2,) H-LIP step to be placed at SSP⁻_{k+1} [m]
+    gain: jax.Array         # (2, 3) stepping gain per plane on [c, p, v]
+    heading: jax.Array      # path heading at SSP⁻_{k+1} [rad]
+    t_ssp: jax.Array        # the planner's H-LIP phase durations [s] and COM height [m]
+    t_dsp: jax.Array
+    z0: jax.Array
+
+
+class StepResult(NamedTuple):
+    """The robot at SSP⁻_{k+1}."""
+    x_robot: jax.Array      # (2, 3) [c, p, v] per plane (p relative to the stance foot of the SSP)
+    u_robot: jax.Array      # (2,) step placed at SSP⁻_{k+1} [m]
+    failed: jax.Array       # bool: the robot fell or its state is not finite

@@ -1,0 +1,135 @@
+"""An H-LIP "robot": executes commanded steps with disturbances, integrated exactly.
+
+Per plane the robot is a LIP of its own (z0, T_SSP, T_DSP — they may differ from the
+planner's: *model mismatch*).  A walking step from SSP⁻_k:
+
+* DSP for T_D:   p̈ = a(t)                 (a: push acceleration F/m along that plane [m/s²])
+* the step u (placed at SSP⁻_k) takes effect: p ← p − u   (c unchanged)
+* SSP for T_S:   p̈ = λ² p + a(t)
+* additive S2S noise (uniform box, seeded): p ← p + δp, c ← c + δp, v ← v + δv
+* the next step u_{k+1} = u_HLIP,k+1 + K (x_robot,k+1 − x_HLIP,k+1) + δu (placement error).
+
+The global COM c moves with p inside the phases (c − p is the stance-foot position).
+Pushes are piecewise-constant forces over [start, start + duration); each phase is split at the
+push boundaries and every piece is integrated in closed form:
+
+  DSP piece of length τ:  p = p₀ + v₀τ + aτ²/2,         v = v₀ + aτ
+  SSP piece of length τ:  q = p + a/λ²,  p = q₀ cosh λτ + v₀ sinh(λτ)/λ − a/λ²,
+                          v = q₀ λ sinh λτ + v₀ cosh λτ.
+
+The robot falls when |p| exceeds ``fall_distance`` (the COM far outside any foot reach) or the
+state stops being finite.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hlip_jax.config import ScenarioConfig
+from hlip_jax.plants.base import StepCommand, StepResult
+
+
+class Params(NamedTuple):
+    z0: jax.Array           # [m]
+    t_ssp: jax.Array        # [s]
+    t_dsp: jax.Array        # [s]
+    g: jax.Array            # [m/s²]
+    noise: jax.Array        # (2,) half-widths of the uniform S2S noise on [p, v] (c moves with p)
+    step_error: jax.Array   # half-width of the uniform placement error [m]
+    push_start: jax.Array   # (P,) [s]
+    push_end: jax.Array     # (P,) [s]
+    push_acc: jax.Array     # (P, 2) F/m in world x, y [m/s²]
+    fall_distance: jax.Array  # [m]
+
+
+class State(NamedTuple):
+    x: jax.Array      # (2, 3) [c, p, v] per plane at SSP⁻
+    u: jax.Array      # (2,) step placed at this SSP⁻
+    time: jax.Array   # the plant's own clock [s]
+    key: jax.Array
+
+
+def make_params(cfg: ScenarioConfig, max_pushes: int) -> Params:
+    """Per-scenario plant data; 0 in a mismatch field means "the planner's value"."""
+    d, h = cfg.disturbance, cfg.hlip
+    pushes = list(d.pushes)
+    start = np.full(max_pushes, -1.0)
+    end = np.full(max_pushes, -1.0)
+    acc = np.zeros((max_pushes, 2))
+    for i, p in enumerate(pushes):
+        start[i], end[i] = p.time, p.time + p.duration
+        ang = np.deg2rad(p.direction)
+        acc[i] = p.force / d.mass * np.array([np.cos(ang), np.sin(ang)])
+    return Params(
+        z0=np.float64(d.z0 or h.z0), t_ssp=np.float64(d.t_ssp or h.t_ssp),
+        t_dsp=np.float64(d.t_dsp if d.t_dsp else h.t_dsp), g=np.float64(h.g),
+        noise=np.array([d.noise_p, d.noise_v]), step_error=np.float64(d.step_error),
+        push_start=start, push_end=end, push_acc=acc, fall_distance=np.float64(1.0))
+
+
+def _push_pieces(params: Params, t0, duration):
+    """Split [t0, t0 + duration] at the push boundaries: piece lengths (2P+1,) and the
+    constant push acceleration (2P+1, 2) on each piece."""
+    cuts = jnp.clip(jnp.concatenate([params.push_start, params.push_end]) - t0, 0.0, duration)
+    pts = jnp.sort(jnp.concatenate([cuts, jnp.zeros((1,), cuts.dtype)]))
+    ends = jnp.concatenate([pts[1:], jnp.full((1,), duration, cuts.dtype)])
+    lengths = ends - pts
+    mid = t0 + 0.5 * (pts + ends)
+    on = (mid[:, None] >= params.push_start[None]) & (mid[:, None] < params.push_end[None])
+    acc = on.astype(cuts.dtype) @ params.push_acc
+    return lengths, acc
+
+
+def flow(p, v, a, tau, lam, ssp):
+    """Exact LIP (``ssp``) or DSP flow over ``tau`` [s] with constant acceleration ``a``."""
+    ch, sh = jnp.cosh(lam * tau), jnp.sinh(lam * tau)
+    off = a / lam**2
+    q = p + off
+    p_s, v_s = q * ch + v * sh / lam - off, q * lam * sh + v * ch
+    p_d, v_d = p + v * tau + 0.5 * a * tau**2, v + a * tau
+    return jnp.where(ssp, p_s, p_d), jnp.where(ssp, v_s, v_d)
+
+
+def _phase(params: Params, p, v, t0, duration, ssp):
+    lam = jnp.sqrt(params.g / params.z0)
+    lengths, acc = _push_pieces(params, t0, duration)
+
+    def body(carry, piece):
+        p, v = carry
+        tau, a = piece
+        return flow(p, v, a, tau, lam, ssp), None
+
+    (p, v), _ = jax.lax.scan(body, (p, v), (lengths, acc))
+    return p, v
+
+
+def stepping_law(cmd_u, gain, x_robot, x_hlip):
+    """u = u_HLIP + K (x_robot − x_HLIP), per plane; gain (2, 3)."""
+    return cmd_u + jnp.sum(gain * (x_robot - x_hlip), axis=-1)
+
+
+def init(params: Params, x0, u0, stance0, key) -> State:
+    del params, stance0
+    return State(x=x0, u=u0, time=jnp.zeros((), x0.dtype), key=key)
+
+
+def step(params: Params, state: State, cmd: StepCommand):
+    c, p, v = state.x[:, 0], state.x[:, 1], state.x[:, 2]
+    c_start = c - p
+    p1, v1 = _phase(params, p, v, state.time, params.t_dsp, False)          # DSP
+    foot = c_start + state.u                                                 # new stance foot
+    p2, v2 = _phase(params, p1 - state.u, v1, state.time + params.t_dsp, params.t_ssp, True)
+    key, k_noise, k_step = jax.random.split(state.key, 3)
+    dx = jax.random.uniform(k_noise, (2, 2), p.dtype, -1.0, 1.0) * params.noise
+    p2 = p2 + dx[:, 0]
+    v2 = v2 + dx[:, 1]
+    x_next = jnp.stack([foot + p2, p2, v2], axis=-1)
+    du = jax.random.uniform(k_step, (2,), p.dtype, -1.0, 1.0) * params.step_error
+    u_next = stepping_law(cmd.u_hlip_next, cmd.gain, x_next, cmd.x_hlip_next) + du
+    failed = ~jnp.all(jnp.isfinite(x_next)) | jnp.any(jnp.abs(p2) > params.fall_distance)
+    new = State(x=x_next, u=u_next, time=state.time + params.t_dsp + params.t_ssp, key=key)
+    return new, StepResult(x_robot=x_next, u_robot=u_next, failed=failed)

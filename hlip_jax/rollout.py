@@ -1,0 +1,317 @@
+"""The closed loop: MPC on the H-LIP → stepping law → plant, scanned over walking steps and
+vmapped over scenarios.
+
+Timeline of step k (t_k = k T, T = T_SSP + T_DSP of the planner's H-LIP):
+
+1. at SSP⁻_k the H-LIP is at x_H,k and places u_H,k; the robot is at x_R,k and places u_R,k;
+2. the H-LIP's next pre-impact state is known: x_H,k+1 = A x_H,k + B u_H,k  (``mode="tube"``;
+   with ``mode="measured"`` the nominal is re-anchored on the robot: x_H,k+1 = A x_R,k + B u_R,k);
+3. the MPC plans u_H,k+1 … u_H,k+N from x_H,k+1 with the path preview at t_{k+1} + jT
+   (warm-started from the previous plan, obstacles re-linearised there);
+4. the plant walks SSP⁻_k → SSP⁻_{k+1} and chooses u_R,k+1 = u_H,k+1 + K (x_R,k+1 − x_H,k+1).
+
+So e_k = x_R,k − x_H,k obeys e_{k+1} = (A + BK) e_k + w_k with w_k = x_R,k+1 − A x_R,k − B u_R,k
+(the robot's S2S residual against the H-LIP).  Before the loop the MPC plans u_H,0 from x_H,0.
+
+A scenario whose QP fails keeps walking on its previous plan (shifted) and counts the failure;
+a robot that falls is frozen from that step on and marked; neither touches other scenarios.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hlip_jax import hlip, mpc, paths, qp
+from hlip_jax.config import ScenarioConfig
+from hlip_jax.plants import hlip_plant
+from hlip_jax.plants.base import StepCommand
+
+STATUS_OK, STATUS_FELL, STATUS_NONFINITE, STATUS_QP_FAILED = 0, 1, 2, 3
+STATUS_NAMES = {STATUS_OK: "ok", STATUS_FELL: "fell", STATUS_NONFINITE: "nonfinite",
+                STATUS_QP_FAILED: "qp_failed"}
+STANCE_LEFT, STANCE_RIGHT = 0, 1
+
+
+class Scenario(NamedTuple):
+    """Batched per-scenario data (leading axis = scenarios)."""
+    mpc: mpc.MPCParams
+    path: paths.Path
+    gain: jax.Array       # (2, 3)
+    z0: jax.Array
+    t_ssp: jax.Array
+    t_dsp: jax.Array
+    x0: jax.Array         # (2, 3) initial state (robot and H-LIP)
+    n_steps: jax.Array    # steps to simulate (≤ the static K)
+    tube: jax.Array       # bool: plan from the H-LIP's own state
+    plant: object         # the plant's params pytree
+    key: jax.Array
+
+
+class Static(NamedTuple):
+    """Shapes and solver settings: one compile per distinct value."""
+    n_steps: int
+    horizon: int
+    settings: qp.Settings
+    plant: str
+
+
+class Log(NamedTuple):
+    """Per-step record; see the module doc of the fields' meaning. Leading axes (S, K)."""
+    t: np.ndarray
+    stance: np.ndarray
+    x_hlip: np.ndarray
+    x_robot: np.ndarray
+    e: np.ndarray
+    w: np.ndarray
+    u_hlip: np.ndarray
+    u_robot: np.ndarray
+    ref_pos: np.ndarray
+    ref_vel: np.ndarray
+    ref_heading: np.ndarray
+    qp_status: np.ndarray
+    qp_iter: np.ndarray
+    obstacle_slack: np.ndarray
+    clearance: np.ndarray
+    valid: np.ndarray
+    status: np.ndarray
+    fail_step: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    K_gain: np.ndarray
+
+
+# ----------------------------------------------------------------------------------------------
+# configs → arrays
+
+def stepping_gain(cfg: ScenarioConfig) -> np.ndarray:
+    """K (2, 3) per plane on [c, p, v] (zero on c: the MPC handles global position)."""
+    h, g = cfg.hlip, cfg.gain
+    if g.type == "deadbeat":
+        k = hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp, h.g)
+    else:
+        A, B = hlip.s2s_matrices(h.z0, h.t_ssp, h.t_dsp, h.g, with_position=False)
+        k = hlip.lqr_gain(A, B, jnp.diag(jnp.array([g.q_p, g.q_v])), jnp.array(g.r))
+    k = np.asarray(k, np.float64)
+    return np.tile(np.concatenate([[0.0], k]), (2, 1))
+
+
+def n_steps_of(cfg: ScenarioConfig) -> int:
+    return int(math.ceil(cfg.duration / (cfg.hlip.t_ssp + cfg.hlip.t_dsp) - 1e-9))
+
+
+def _path_of(cfg: ScenarioConfig, t_final: float, n_samples: int) -> paths.Path:
+    params = dict(cfg.path.params)
+    params.setdefault("t_final", t_final)
+    params.setdefault("n_samples", n_samples)
+    return paths.make_path(cfg.path.shape, **params)
+
+
+def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=jnp.float64):
+    """Validated configs → (Scenario batch, Static).  The horizon, the QP settings and the
+    plant must agree across the batch (they are shapes / static settings)."""
+    if not configs:
+        raise ValueError("build: no scenarios")
+    first = configs[0]
+    for c in configs:
+        for name, a, b in (("mpc.horizon", c.mpc.horizon, first.mpc.horizon),
+                           ("mpc.qp_max_iter", c.mpc.qp_max_iter, first.mpc.qp_max_iter),
+                           ("mpc.qp_eps", c.mpc.qp_eps, first.mpc.qp_eps),
+                           ("plant", c.plant, first.plant)):
+            if a != b:
+                raise ValueError(f"{name} must be the same for every scenario of a batch "
+                                 f"(it fixes shapes/compiled settings): got {a!r} and {b!r}")
+    K = max(n_steps_of(c) for c in configs)
+    horizon = first.mpc.horizon
+    t_final = max((K + horizon + 2) * (c.hlip.t_ssp + c.hlip.t_dsp) for c in configs)
+    n_obs = max((len(c.obstacles) for c in configs), default=0)
+    n_push = max(1, max(len(c.disturbance.pushes) for c in configs))
+
+    rows = []
+    for c in configs:
+        A, B = hlip.s2s_matrices(c.hlip.z0, c.hlip.t_ssp, c.hlip.t_dsp, c.hlip.g)
+        obs = np.zeros((n_obs, 3))
+        act = np.zeros(n_obs, bool)
+        for i, o in enumerate(c.obstacles):
+            obs[i] = (o.x, o.y, o.radius)
+            act[i] = True
+        m = c.mpc
+        mp = mpc.MPCParams(A=np.asarray(A), B=np.asarray(B), w_pos=m.w_pos, w_vel=m.w_vel,
+                           alpha=m.alpha, length_min=m.step_length_min,
+                           length_max=m.step_length_max, width_min=m.step_width_min,
+                           width_max=m.step_width_max, obstacle_weight=m.obstacle_weight,
+                           obstacles=obs, obstacle_active=act)
+        path = _path_of(c, t_final, n_samples)
+        start = np.array([float(path.x[0]), float(path.y[0])])
+        x0 = np.stack([np.array([start[0], 0.0, 0.0]), np.array([start[1], 0.0, 0.0])])
+        if c.plant == "hlip":
+            plant = hlip_plant.make_params(c, n_push)
+        else:
+            from hlip_jax.plants.cassie import plant as cassie_plant  # heavy import, on demand
+            plant = cassie_plant.make_params(c, n_push)
+        rows.append(Scenario(mpc=mp, path=path, gain=stepping_gain(c), z0=c.hlip.z0,
+                             t_ssp=c.hlip.t_ssp, t_dsp=c.hlip.t_dsp, x0=x0,
+                             n_steps=np.int32(n_steps_of(c)), tube=np.bool_(m.mode == "tube"),
+                             plant=plant, key=np.asarray(jax.random.key_data(jax.random.PRNGKey(c.seed)))))
+    batch = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *rows)
+
+    def cast(x):
+        x = np.asarray(x)
+        return jnp.asarray(x, dtype) if np.issubdtype(x.dtype, np.floating) else jnp.asarray(x)
+
+    batch = jax.tree.map(cast, batch)
+    settings = qp.Settings(eps_abs=first.mpc.qp_eps, eps_rel=first.mpc.qp_eps,
+                           max_iter=first.mpc.qp_max_iter, check_interval=25,
+                           adaptive_rho_interval=50)
+    return batch, Static(n_steps=K, horizon=horizon, settings=settings, plant=first.plant)
+
+
+# ----------------------------------------------------------------------------------------------
+# the loop
+
+def _preview(path, t_start, T, N):
+    """Path preview for a plan from time t_start: targets at t_start + jT (j = 1..N),
+    headings at the step instants t_start + jT (j = 0..N-1)."""
+    times = t_start + T * jnp.arange(N + 1, dtype=T.dtype)
+    ref = jax.vmap(lambda t: paths.reference(path, t))(times)
+    return mpc.Preview(pos=ref.position[1:], vel=ref.velocity[1:], heading=ref.heading[:-1])
+
+
+def _plant_module(name: str):
+    if name == "hlip":
+        return hlip_plant
+    from hlip_jax.plants.cassie import plant as cassie_plant
+    return cassie_plant
+
+
+def simulate_one(scn: Scenario, static: Static):
+    """One scenario's closed loop (vmap this).  Returns a dict of per-step arrays."""
+    N = static.horizon
+    O = scn.mpc.obstacles.shape[0]
+    plant = _plant_module(static.plant)
+    A, B = scn.mpc.A, scn.mpc.B
+    T = scn.t_ssp + scn.t_dsp
+    dt = scn.x0.dtype
+
+    def plan(x_start, t_start, stance, prev_plan):
+        prev = _preview(scn.path, t_start, T, N)
+        prev_c = prev_plan.states[:, :, 0]
+        ws = mpc.shift_warm_start(prev_plan, N, O)
+        new = mpc.solve(scn.mpc, x_start, prev, stance, prev_c, static.settings, warm_start=ws)
+        ok = (new.status == qp.SOLVED) | (new.status == qp.SOLVED_INACCURATE)
+        ok = ok & jnp.all(jnp.isfinite(new.u))
+        # fallback on failure: the previous plan, shifted by one step
+        shifted_u = jnp.concatenate([prev_plan.u[1:], prev_plan.u[-1:]])
+        u = jnp.where(ok, new.u, shifted_u)
+        result = new._replace(u=u, states=mpc.predict(scn.mpc, x_start, u),
+                              z=jnp.where(ok, new.z, ws[0]), y=jnp.where(ok, new.y, ws[1]))
+        return result, ok
+
+    # initial plan u_H,0.. from x_H,0 (a cold start: previous plan = resting on the start)
+    stance0 = jnp.int32(STANCE_RIGHT)
+    n_var, n_con = 2 * N + O, 2 * N + N * O + O
+    cold = mpc.Plan(u=jnp.zeros((N, 2), dt), states=jnp.broadcast_to(scn.x0, (N, 2, 3)),
+        slack=jnp.zeros((), dt), z=jnp.zeros((n_var,), dt), y=jnp.zeros((n_con,), dt),
+        status=jnp.int32(1), iterations=jnp.int32(0))
+    plan0, ok0 = plan(scn.x0, jnp.zeros((), dt), stance0, cold)
+    u_h0 = plan0.u[0]
+    u_r0 = u_h0  # x_R,0 = x_H,0
+    pstate = plant.init(scn.plant, scn.x0, u_r0, stance0, scn.key)
+
+    class Carry(NamedTuple):
+        x_h: jax.Array
+        u_h: jax.Array
+        x_r: jax.Array
+        u_r: jax.Array
+        plan: mpc.Plan
+        pstate: object
+        alive: jax.Array
+        qp_ok: jax.Array
+
+    def body(carry: Carry, k):
+        t_k = k.astype(dt) * T
+        stance_k = (stance0 + k) % 2
+        active = carry.alive & (k < scn.n_steps)
+        # 2. the nominal's next pre-impact state
+        x_h_next = jnp.where(scn.tube, (carry.x_h @ A.T) + carry.u_h[:, None] * B,
+                             (carry.x_r @ A.T) + carry.u_r[:, None] * B)
+        # 3. plan from it
+        new_plan, ok = plan(x_h_next, t_k + T, 1 - stance_k, carry.plan)
+        u_h_next = new_plan.u[0]
+        # 4. the plant walks one step
+        heading_next = paths.reference(scn.path, t_k + T).heading
+        cmd = StepCommand(t=t_k, stance=stance_k, x_hlip=carry.x_h, u_hlip=carry.u_h,
+                          x_hlip_next=x_h_next, u_hlip_next=u_h_next, gain=scn.gain,
+                          heading=heading_next, t_ssp=scn.t_ssp, t_dsp=scn.t_dsp, z0=scn.z0)
+        pnext, res = plant.step(scn.plant, carry.pstate, cmd)
+        ref = paths.reference(scn.path, t_k)
+        obs = scn.mpc.obstacles
+        gap = jnp.linalg.norm(carry.x_r[:, 0][None, :] - obs[:, :2], axis=-1) - obs[:, 2]
+        clearance = jnp.min(jnp.where(scn.mpc.obstacle_active, gap, jnp.inf), initial=jnp.inf)
+        w = res.x_robot - (carry.x_r @ A.T) - carry.u_r[:, None] * B
+        out = dict(t=t_k, stance=stance_k, x_hlip=carry.x_h, x_robot=carry.x_r,
+                   u_hlip=carry.u_h, u_robot=carry.u_r, w=w, ref_pos=ref.position,
+                   ref_vel=ref.velocity, ref_heading=ref.heading, qp_status=new_plan.status,
+                   qp_iter=new_plan.iterations, obstacle_slack=new_plan.slack,
+                   clearance=clearance, valid=active, failed_now=active & res.failed,
+                   nonfinite=active & ~jnp.all(jnp.isfinite(res.x_robot)),
+                   qp_failed=active & ~ok)
+        keep = active & ~res.failed
+
+        def sel(new, old):
+            return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, old)
+
+        nxt = Carry(x_h=sel(x_h_next, carry.x_h), u_h=sel(u_h_next, carry.u_h),
+                    x_r=sel(res.x_robot, carry.x_r), u_r=sel(res.u_robot, carry.u_r),
+                    plan=sel(new_plan, carry.plan), pstate=sel(pnext, carry.pstate),
+                    alive=carry.alive & ~(active & res.failed),
+                    qp_ok=carry.qp_ok & (ok | ~active))
+        return nxt, out
+
+    carry0 = Carry(x_h=scn.x0, u_h=u_h0, x_r=scn.x0, u_r=u_r0, plan=plan0, pstate=pstate,
+                   alive=jnp.bool_(True), qp_ok=ok0)
+    final, out = jax.lax.scan(body, carry0, jnp.arange(static.n_steps))
+    failed_steps = out.pop("failed_now")
+    nonfinite = out.pop("nonfinite")
+    qp_failed = out.pop("qp_failed")
+    any_fail = jnp.any(failed_steps)
+    fail_step = jnp.where(any_fail, jnp.argmax(failed_steps), -1)
+    status = jnp.where(jnp.any(nonfinite), STATUS_NONFINITE,
+                       jnp.where(any_fail, STATUS_FELL,
+                                 jnp.where(jnp.any(qp_failed) | ~ok0, STATUS_QP_FAILED, STATUS_OK)))
+    # w_k needs the robot at k+1: valid only when step k+1 is valid too
+    out["e"] = out["x_robot"] - out["x_hlip"]
+    out["status"] = status
+    out["fail_step"] = fail_step
+    return out
+
+
+def _run(batch: Scenario, static: Static):
+    return jax.vmap(lambda s: simulate_one(s, static))(batch)
+
+
+run = jax.jit(_run, static_argnames=("static",))
+
+
+def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to: int | None = None,
+             dtype=jnp.float64) -> Log:
+    """Run every scenario of ``configs`` in one compiled, vmapped call and return the Log
+    (numpy arrays, scenarios in the order given).  ``pad_to`` pads the batch (repeating the
+    last scenario) so chunks of a sweep share one compile; padding is dropped from the Log."""
+    configs = list(configs)
+    S = len(configs)
+    padded = configs + [configs[-1]] * max(0, (pad_to or S) - S)
+    batch, static = build(padded, n_samples=n_samples, dtype=dtype)
+    with jax.default_matmul_precision("highest"):
+        out = run(batch, static)
+    out = jax.tree.map(lambda a: np.asarray(a)[:S], out)
+    valid = out["valid"]
+    valid_w = valid & np.concatenate([valid[:, 1:], np.zeros((S, 1), bool)], axis=1)
+    out["w"] = np.where(valid_w[..., None, None], out["w"], np.nan)
+    A = np.asarray(batch.mpc.A)[:S]
+    Bm = np.asarray(batch.mpc.B)[:S]
+    return Log(A=A, B=Bm, K_gain=np.asarray(batch.gain)[:S], **out)
