@@ -103,8 +103,10 @@ class Zonotope(NamedTuple):
 
     def contains(self, points, tol: float = 1e-9):
         """Bool per point through the exact facets; ``tol`` relative to the set's size."""
-        z = self if self.normals is not None else zonotope_hrep(self)
-        return _zono_contains(_as_jnp(z), jnp.asarray(points), tol)
+        z = _as_jnp(self if self.normals is not None else zonotope_hrep(self))
+        N, h = _pad_facets(z.normals, z.offsets, 1.0)
+        return _padded_call(lambda x: _zono_contains(z._replace(normals=N, offsets=h), x, tol),
+                            jnp.asarray(points))
 
     def volume(self):
         """2ⁿ Σ_{|S|=n} |det G_S| over all n-subsets S of the generators (exact)."""
@@ -136,8 +138,8 @@ class Hull(NamedTuple):
     def contains(self, points, tol: float = 1e-9):
         h = self.canonical()
         c = jnp.mean(jnp.asarray(h.vertices), axis=0)
-        return _hpoly_contains(jnp.asarray(h.normals), jnp.asarray(h.offsets), c,
-                               jnp.asarray(points), tol)
+        N, b = _pad_facets(jnp.asarray(h.normals), jnp.asarray(h.offsets), 0.0)
+        return _padded_call(lambda x: _hpoly_contains(N, b, c, x, tol), jnp.asarray(points))
 
     def volume(self):
         """Lebesgue measure (scipy Qhull, eager; length in 1-D)."""
@@ -166,8 +168,9 @@ class TemplatePolytope(NamedTuple):
         return _hull_support(jnp.asarray(self.vertices), jnp.asarray(directions))
 
     def contains(self, points, tol: float = 1e-9):
-        return _hpoly_contains(jnp.asarray(self.normals), jnp.asarray(self.offsets),
-                               jnp.asarray(self.center), jnp.asarray(points), tol)
+        N, b = _pad_facets(jnp.asarray(self.normals), jnp.asarray(self.offsets), 0.0)
+        c = jnp.asarray(self.center)
+        return _padded_call(lambda x: _hpoly_contains(N, b, c, x, tol), jnp.asarray(points))
 
     def volume(self):
         return _points_volume(_f64(self.vertices))
@@ -205,6 +208,33 @@ class MRPI(NamedTuple):
 
 def _as_jnp(t):
     return jax.tree_util.tree_map(jnp.asarray, t)
+
+
+def _bucket(k: int) -> int:
+    """Next power of two ≥ max(k, 16): padded sizes so that sets and sample batches of
+    similar size share one compiled kernel."""
+    return 1 << max(4, int(k - 1).bit_length())
+
+
+def _pad_facets(N, b, fill):
+    """Pad facet rows to a bucket size with inert rows (0ᵀx ≤ fill, fill ≥ 0)."""
+    F = N.shape[0]
+    pad = _bucket(F) - F
+    if pad == 0:
+        return N, b
+    return (jnp.concatenate([N, jnp.zeros((pad, N.shape[1]), N.dtype)]),
+            jnp.concatenate([b, jnp.full((pad,), fill, b.dtype)]))
+
+
+def _padded_call(fn, x):
+    """fn on points padded (flattened) to a bucket size; result reshaped to x.shape[:-1]."""
+    batch = x.shape[:-1]
+    flat = x.reshape(-1, x.shape[-1])
+    k = flat.shape[0]
+    if k == 0:
+        return jnp.zeros(batch, bool)
+    out = fn(jnp.pad(flat, ((0, _bucket(k) - k), (0, 0))))
+    return out[:k].reshape(batch)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -761,17 +791,18 @@ class Coverage(NamedTuple):
 
 def coverage(E, e_samples, mask=None, tol: float = 1e-9) -> Coverage:
     """Coverage bracket of error samples e (..., n) (rows with ``mask`` False ignored)."""
-    e = jnp.asarray(e_samples)
-    m = jnp.ones(e.shape[:-1], bool) if mask is None else jnp.asarray(mask, bool)
+    e = np.asarray(e_samples)
+    m = np.ones(e.shape[:-1], bool) if mask is None else np.asarray(mask, bool)
     if m.shape != e.shape[:-1]:
         raise ValueError(f"mask: shape {e.shape[:-1]} expected, got {m.shape}")
-    cnt = int(jnp.sum(m))
+    cnt = int(m.sum())
     if cnt == 0:
         return Coverage(float("nan"), float("nan"), 0)
     inner_set = E.inner if isinstance(E, MRPI) else E
     outer_set = E.outer if isinstance(E, MRPI) else E
-    fi = float(jnp.sum(inner_set.contains(e, tol) & m)) / cnt
-    fo = float(jnp.sum(outer_set.contains(e, tol) & m)) / cnt
+    pts = e[m]  # only the counted samples are tested
+    fi = float(np.sum(np.asarray(inner_set.contains(pts, tol)))) / cnt
+    fo = fi if outer_set is inner_set else float(np.sum(np.asarray(outer_set.contains(pts, tol)))) / cnt
     return Coverage(fi, fo, cnt)
 
 
@@ -807,12 +838,13 @@ def _joint(E_pair, e, mask, tol):
     cnt = int(m.sum())
     if cnt == 0:
         return Coverage(float("nan"), float("nan"), 0)
-    ins_i = np.ones(m.shape, bool)
-    ins_o = np.ones(m.shape, bool)
+    pts = e[m]  # (cnt, 2, n)
+    ins_i = np.ones(cnt, bool)
+    ins_o = np.ones(cnt, bool)
     for p, E in enumerate(E_pair):
-        ins_i &= np.asarray(E.inner.contains(e[..., p, :], tol))
-        ins_o &= np.asarray(E.outer.contains(e[..., p, :], tol))
-    return Coverage(float((ins_i & m).sum()) / cnt, float((ins_o & m).sum()) / cnt, cnt)
+        ins_i &= np.asarray(E.inner.contains(pts[:, p, :], tol))
+        ins_o &= np.asarray(E.outer.contains(pts[:, p, :], tol))
+    return Coverage(float(ins_i.sum()) / cnt, float(ins_o.sum()) / cnt, cnt)
 
 
 def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
@@ -849,8 +881,9 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
 
     d = disturbances(x, u_exec, valid, Ap, Bp, transient)
     w, wmask = np.asarray(d.w), np.asarray(d.mask)
-    es = np.asarray(_states(jnp.asarray(e), n))
-    emask = np.asarray(step_mask(valid, transient))
+    es = _states(e, n)
+    alive = np.cumprod(np.asarray(valid, bool), axis=-1).astype(bool)
+    emask = alive & (np.arange(alive.shape[-1]) >= transient)  # = step_mask, in numpy
 
     n_scen = x.shape[0]
     n_test = int(round(holdout_fraction * n_scen))

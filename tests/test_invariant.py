@@ -15,6 +15,7 @@ from hlip_jax import hlip
 from hlip_jax import invariant as inv
 
 Z0, TS, TD = 0.8, 0.3, 0.1
+_lqr_gain = jax.jit(hlip.lqr_gain)  # one compile per shape instead of eager op-by-op
 
 
 def _deadbeat2():
@@ -28,13 +29,13 @@ def _acl3(kind):
     if kind == "deadbeat":
         K = hlip.deadbeat_gain(Z0, TS, TD, with_position=True)
     else:
-        K = hlip.lqr_gain(A, B, jnp.eye(3), jnp.array(1.0))
+        K = _lqr_gain(A, B, jnp.eye(3), jnp.array(1.0))
     return np.asarray(A + jnp.outer(B, K))
 
 
 def _lqr2():
     A, B = hlip.s2s_matrices(Z0, TS, TD, with_position=False)
-    K = hlip.lqr_gain(A, B, jnp.eye(2), jnp.array(0.5))
+    K = _lqr_gain(A, B, jnp.eye(2), jnp.array(0.5))
     return np.asarray(A + jnp.outer(B, K))
 
 
@@ -265,7 +266,7 @@ def _log(n_scen, n_steps, seed, lo, hi):
     A, B = hlip.s2s_matrices(Z0, TS, TD, with_position=True)
     A, B = np.asarray(A), np.asarray(B)
     K = np.stack([np.asarray(hlip.deadbeat_gain(Z0, TS, TD, with_position=True)),
-                  np.asarray(hlip.lqr_gain(jnp.asarray(A), jnp.asarray(B), jnp.eye(3),
+                  np.asarray(_lqr_gain(jnp.asarray(A), jnp.asarray(B), jnp.eye(3),
                                            jnp.array(1.0)))])
     rng = np.random.default_rng(seed)
     w = rng.uniform(lo, hi, size=(n_scen, n_steps, 2, 3))
@@ -320,7 +321,7 @@ def test_end_to_end_w_converges_and_heldout_coverage():
     # [p, v] analysis of the same log (A 2×2 drops c); quantile box reports fewer inside
     A2, B2 = A[1:, 1:], B[1:]
     K2 = np.stack([np.asarray(hlip.deadbeat_gain(Z0, TS, TD)),
-                   np.asarray(hlip.lqr_gain(jnp.asarray(A2), jnp.asarray(B2), jnp.eye(2),
+                   np.asarray(_lqr_gain(jnp.asarray(A2), jnp.asarray(B2), jnp.eye(2),
                                             jnp.array(1.0)))])
     r2 = inv.analyse(x, u, np.ones(x.shape[:2], bool), x, A2, B2, K2, W_estimator="quantile",
                      quantile=0.95)
