@@ -333,7 +333,9 @@ def _unique_directions(N: np.ndarray, decimals: int = 10) -> np.ndarray:
     first = np.argmax(np.abs(N) > 1e-9, axis=1)
     sgn = np.sign(N[np.arange(len(N)), first])
     N = N * sgn[:, None]
-    _, idx = np.unique(np.round(N, decimals), axis=0, return_index=True)
+    key = np.ascontiguousarray(np.round(N, decimals) + 0.0)  # + 0.0 folds −0 into 0
+    key = key.view(np.dtype((np.void, key.dtype.itemsize * key.shape[1]))).ravel()
+    _, idx = np.unique(key, return_index=True)
     return N[np.sort(idx)]
 
 
