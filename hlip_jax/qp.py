@@ -1,0 +1,515 @@
+"""Batched dense ADMM solver for small convex quadratic programs (OSQP's algorithm in JAX).
+
+Solves, for each problem of a batch,
+
+    minimise ½ xᵀ P x + qᵀ x   subject to   l ≤ A x ≤ u,
+
+with P (n×n) symmetric positive semidefinite, A (m×n), l, u ∈ (ℝ ∪ {±∞})ᵐ.  Bounds with
+|l_i|, |u_i| ≥ 1e20 are treated as infinite.  Units are those of the caller's problem.
+
+The algorithm is OSQP's (Stellato, Banjac, Goulart, Bemporad, Boyd, "OSQP: an operator
+splitting solver for quadratic programs", Math. Prog. Comp. 2020), on dense matrices:
+
+1. *Ruiz equilibration* (``Settings.scaling`` passes) of the KKT matrix [[P, Aᵀ], [A, 0]] with
+   diagonal D (n) and E (m), each pass followed by *cost scaling* c; the solver works on
+   P̄ = c D P D, q̄ = c D q, Ā = E A D, l̄ = E l, ū = E u and unscales the result:
+   x = D x̄, y = E ȳ / c, z = E⁻¹ z̄.
+2. *Per-row step sizes* ρ_i: ρ for inequality rows, 1e3·ρ for equality rows (u_i − l_i < 1e-4 after
+   scaling), 1e-6 for free rows (both bounds infinite).
+3. *ADMM iteration* with over-relaxation α:  solve (P̄ + σI + Āᵀ diag(ρ) Ā) x̃ = σx − q̄ + Āᵀ(ρ∘z − y),
+   z̃ = Ā x̃;  x ← αx̃ + (1−α)x;  z ← Π_[l̄,ū](αz̃ + (1−α)z + y/ρ);  y ← y + ρ∘(αz̃ + (1−α)z_prev − z).
+   The linear system is factored by dense Cholesky and refactored when ρ adapts.
+4. *Termination* every ``check_interval`` iterations on the unscaled residuals
+   r_prim = ‖Ax − z‖∞ ≤ ε_abs + ε_rel max(‖Ax‖∞, ‖z‖∞),
+   r_dual = ‖Px + q + Aᵀy‖∞ ≤ ε_abs + ε_rel max(‖Px‖∞, ‖Aᵀy‖∞, ‖q‖∞).
+5. *Infeasibility certificates* from the last iterate differences δy (primal) and δx (dual).
+6. *Adaptive ρ*: ρ ← ρ √((r_prim/‖·‖) / (r_dual/‖·‖)) in scaled quantities, applied when it changes
+   by more than ``adaptive_rho_tolerance``, checked every ``adaptive_rho_interval`` iterations.
+
+The iteration runs as a ``lax.while_loop`` over blocks of ``check_interval`` iterations
+(``lax.fori_loop`` inside), so a vmapped batch stops as soon as every problem is done; a finished
+problem is frozen (``jnp.where``) and keeps its own iteration count and status.  Status codes are
+OSQP 1.x's.  dtype follows the inputs (float32 or float64); products run at highest precision.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Optional, Tuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+from jax.scipy.linalg import cho_factor, cho_solve
+
+# --- OSQP 1.x status codes -------------------------------------------------------------------
+SOLVED = 1
+SOLVED_INACCURATE = 2
+PRIMAL_INFEASIBLE = 3
+PRIMAL_INFEASIBLE_INACCURATE = 4
+DUAL_INFEASIBLE = 5
+DUAL_INFEASIBLE_INACCURATE = 6
+MAX_ITER = 7
+NON_CVX = 9
+UNSOLVED = 11  # invalid (non-finite) data, or the iteration produced non-finite numbers
+
+STATUS_NAMES = {
+    SOLVED: "solved",
+    SOLVED_INACCURATE: "solved inaccurate",
+    PRIMAL_INFEASIBLE: "primal infeasible",
+    PRIMAL_INFEASIBLE_INACCURATE: "primal infeasible inaccurate",
+    DUAL_INFEASIBLE: "dual infeasible",
+    DUAL_INFEASIBLE_INACCURATE: "dual infeasible inaccurate",
+    MAX_ITER: "maximum iterations reached",
+    NON_CVX: "non convex",
+    UNSOLVED: "unsolved (invalid data)",
+}
+
+# --- OSQP constants -----------------------------------------------------------------------------
+INF_BOUND = 1e20  # |bound| ≥ this is treated as infinite
+_RHO_MIN = 1e-6  # ρ of free rows and lower clip of adaptive ρ
+_RHO_MAX = 1e6  # upper clip of adaptive ρ
+_RHO_EQ_OVER_RHO_INEQ = 1e3  # ρ factor on equality rows
+_RHO_TOL = 1e-4  # rows with ū − l̄ below this are equality rows
+_MIN_SCALING = 1e-4  # Ruiz norms below this are left unscaled
+_MAX_SCALING = 1e4  # Ruiz norms are clipped to this
+_DIV_TOL = 1e-30  # guard in the adaptive-ρ ratios
+_INACCURATE_FACTOR = 10.0  # tolerance multiplier for the "inaccurate" statuses at max_iter
+
+
+class Settings(NamedTuple):
+    """Static solver settings (hashable; a change recompiles).
+
+    eps_abs, eps_rel: absolute / relative tolerance of the residual test (≥ 0, not both 0).
+    eps_prim_inf, eps_dual_inf: tolerances of the infeasibility certificates (> 0).
+    max_iter: ADMM iteration budget (≥ 1), honoured exactly.
+    rho: initial ADMM step size (> 0).  sigma: x-regularisation σ (> 0).
+    alpha: over-relaxation, in (0, 2).
+    scaling: number of Ruiz equilibration passes (≥ 0; 0 = no scaling).
+    adaptive_rho: adapt ρ with OSQP's rule.
+    adaptive_rho_interval: iterations between ρ updates; a positive multiple of check_interval.
+    adaptive_rho_tolerance: ρ changes only if the new value differs by more than this factor (≥ 1).
+    check_interval: iterations per block; residuals / certificates are checked after each block.
+    linsys: "cholesky" (cho_solve each iteration) or "inverse" (K⁻¹ formed once per factorisation
+      from the Cholesky factor, then matrix–vector products; faster for batches, slightly less
+      accurate for badly conditioned K).
+    """
+
+    eps_abs: float = 1e-3
+    eps_rel: float = 1e-3
+    eps_prim_inf: float = 1e-4
+    eps_dual_inf: float = 1e-4
+    max_iter: int = 4000
+    rho: float = 0.1
+    sigma: float = 1e-6
+    alpha: float = 1.6
+    scaling: int = 10
+    adaptive_rho: bool = True
+    adaptive_rho_interval: int = 50
+    adaptive_rho_tolerance: float = 5.0
+    check_interval: int = 25
+    linsys: str = "cholesky"
+
+
+class Solution(NamedTuple):
+    """Solver output (unscaled); leading batch axes as the inputs.
+
+    x (…, n): primal solution.  y (…, m): constraint multipliers (y_i > 0 at an active upper
+    bound, < 0 at an active lower bound).  z (…, m): A x projected onto [l, u].
+    status (…,) int32: OSQP status code.  iterations (…,) int32: ADMM iterations run.
+    prim_res, dual_res (…,): ∞-norm residuals ‖Ax − z‖ and ‖Px + q + Aᵀy‖ at the last check.
+    For infeasible problems x, y, z are the last iterates (not a solution).
+    """
+
+    x: jax.Array
+    y: jax.Array
+    z: jax.Array
+    status: jax.Array
+    iterations: jax.Array
+    prim_res: jax.Array
+    dual_res: jax.Array
+
+
+def validate_settings(s: Settings) -> None:
+    """Raise ``ValueError`` naming the offending field and its allowed range."""
+    if not isinstance(s, Settings):
+        raise TypeError(f"settings must be hlip_jax.qp.Settings, got {type(s).__name__}")
+
+    def bad(field, rng):
+        raise ValueError(f"Settings.{field} = {getattr(s, field)!r} is outside the allowed range {rng}")
+
+    for f in ("eps_abs", "eps_rel"):
+        if not (getattr(s, f) >= 0 and math.isfinite(getattr(s, f))):
+            bad(f, "[0, inf)")
+    if s.eps_abs == 0 and s.eps_rel == 0:
+        raise ValueError("Settings.eps_abs and Settings.eps_rel are both 0; at least one must be > 0")
+    for f in ("eps_prim_inf", "eps_dual_inf", "rho", "sigma"):
+        if not (getattr(s, f) > 0 and math.isfinite(getattr(s, f))):
+            bad(f, "(0, inf)")
+    if not (0 < s.alpha < 2):
+        bad("alpha", "(0, 2)")
+    for f in ("max_iter", "check_interval"):
+        v = getattr(s, f)
+        if not (isinstance(v, int) and v >= 1):
+            bad(f, "integers >= 1")
+    if not (isinstance(s.scaling, int) and s.scaling >= 0):
+        bad("scaling", "integers >= 0")
+    v = s.adaptive_rho_interval
+    if not (isinstance(v, int) and v >= 1 and v % s.check_interval == 0):
+        bad("adaptive_rho_interval", f"positive multiples of check_interval ({s.check_interval})")
+    if not (s.adaptive_rho_tolerance >= 1):
+        bad("adaptive_rho_tolerance", "[1, inf)")
+    if s.linsys not in ("cholesky", "inverse"):
+        bad("linsys", "{'cholesky', 'inverse'}")
+
+
+# --- helpers -----------------------------------------------------------------------------------
+_HI = lax.Precision.HIGHEST
+
+
+def _mv(M, v):
+    return jnp.matmul(M, v, precision=_HI)
+
+
+def _mtv(M, v):
+    return jnp.matmul(v, M, precision=_HI)
+
+
+def _ninf(v):
+    return jnp.max(jnp.abs(v), initial=0.0)
+
+
+def _limit_scaling(v):
+    """OSQP's limit_scaling: tiny norms → 1 (leave unscaled), huge norms → clipped."""
+    return jnp.where(v < _MIN_SCALING, 1.0, jnp.minimum(v, _MAX_SCALING))
+
+
+class _Scaled(NamedTuple):
+    P: jax.Array
+    q: jax.Array
+    A: jax.Array
+    l: jax.Array  # ±inf for infinite bounds
+    u: jax.Array
+    l_inf: jax.Array  # bool masks of infinite bounds
+    u_inf: jax.Array
+    D: jax.Array
+    E: jax.Array
+    c: jax.Array
+
+
+def _ruiz(P, q, A, passes: int):
+    """Ruiz equilibration with cost scaling (OSQP's scale_data).  Returns P̄, q̄, Ā, D, E, c."""
+    n, m = P.shape[0], A.shape[0]
+    D = jnp.ones((n,), P.dtype)
+    E = jnp.ones((m,), P.dtype)
+    c = jnp.ones((), P.dtype)
+    for _ in range(passes):
+        # Ruiz step: ∞-norms of the KKT columns [P; A] (first n) and of the rows of A (last m).
+        dn = jnp.maximum(jnp.max(jnp.abs(P), axis=0), jnp.max(jnp.abs(A), axis=0))
+        en = jnp.max(jnp.abs(A), axis=1)
+        dt = 1.0 / jnp.sqrt(_limit_scaling(dn))
+        et = 1.0 / jnp.sqrt(_limit_scaling(en))
+        P = dt[:, None] * P * dt[None, :]
+        A = et[:, None] * A * dt[None, :]
+        q = dt * q
+        D = D * dt
+        E = E * et
+        # Cost scaling: c ← c / max(mean column ∞-norm of P̄, ‖q̄‖∞).
+        mean_p = jnp.mean(jnp.max(jnp.abs(P), axis=0))
+        ct = jnp.maximum(mean_p, _limit_scaling(_ninf(q)))
+        ct = 1.0 / _limit_scaling(ct)
+        P = ct * P
+        q = ct * q
+        c = c * ct
+    return P, q, A, D, E, c
+
+
+def _rho_vec(rho, d: _Scaled):
+    """Per-row ρ: free rows 1e-6, equality rows 1e3·ρ, others ρ."""
+    free = d.l_inf & d.u_inf
+    eq = (~d.l_inf) & (~d.u_inf) & ((d.u - d.l) < _RHO_TOL)
+    return jnp.where(free, _RHO_MIN, jnp.where(eq, _RHO_EQ_OVER_RHO_INEQ * rho, rho)).astype(d.q.dtype)
+
+
+def _factor(d: _Scaled, sigma, rho_vec, linsys: str):
+    """Factor the reduced KKT matrix K = P̄ + σI + Āᵀ diag(ρ) Ā (dense Cholesky)."""
+    n = d.P.shape[0]
+    K = d.P + sigma * jnp.eye(n, dtype=d.P.dtype) + jnp.matmul(d.A.T * rho_vec, d.A, precision=_HI)
+    L, _ = cho_factor(K, lower=True)
+    if linsys == "inverse":
+        return cho_solve((L, True), jnp.eye(n, dtype=d.P.dtype))
+    return L
+
+
+def _linsolve(F, rhs, linsys: str):
+    if linsys == "inverse":
+        return _mv(F, rhs)
+    return cho_solve((F, True), rhs)
+
+
+class _State(NamedTuple):
+    x: jax.Array
+    z: jax.Array
+    y: jax.Array
+    dx: jax.Array  # x_k − x_{k−1} (dual infeasibility certificate)
+    dy: jax.Array  # y_k − y_{k−1} (primal infeasibility certificate)
+    rho: jax.Array  # scalar ρ
+    F: jax.Array  # Cholesky factor L or K⁻¹
+    it: jax.Array
+    status: jax.Array
+    done: jax.Array
+    prim_res: jax.Array
+    dual_res: jax.Array
+
+
+def _admm_step(d: _Scaled, s: Settings, rho_vec, F, x, z, y):
+    """One OSQP ADMM iteration in scaled variables."""
+    sigma, alpha = s.sigma, s.alpha
+    # Step 1 (linear system): (P̄ + σI + ĀᵀρĀ) x̃ = σx − q̄ + Āᵀ(ρz − y);  z̃ = Āx̃.
+    rhs = sigma * x - d.q + _mtv(d.A, rho_vec * z - y)
+    xt = _linsolve(F, rhs, s.linsys)
+    zt = _mv(d.A, xt)
+    # Step 2 (over-relaxation + x update).
+    x_new = alpha * xt + (1.0 - alpha) * x
+    zr = alpha * zt + (1.0 - alpha) * z
+    # Step 3 (projection onto [l̄, ū]) and Step 4 (dual update).
+    z_new = jnp.clip(zr + y / rho_vec, d.l, d.u)
+    y_new = y + rho_vec * (zr - z_new)
+    return x_new, z_new, y_new
+
+
+def _residuals(d: _Scaled, x, z, y):
+    """Unscaled residuals and the norms of the relative tests, plus the scaled vectors."""
+    Ax = _mv(d.A, x)
+    Px = _mv(d.P, x)
+    Aty = _mtv(d.A, y)
+    Einv = 1.0 / d.E
+    Dinv = 1.0 / d.D
+    cinv = 1.0 / d.c
+    prim = _ninf(Einv * (Ax - z))
+    prim_norm = jnp.maximum(_ninf(Einv * Ax), _ninf(Einv * z))
+    dual = cinv * _ninf(Dinv * (Px + d.q + Aty))
+    dual_norm = cinv * jnp.maximum(jnp.maximum(_ninf(Dinv * Px), _ninf(Dinv * Aty)), _ninf(Dinv * d.q))
+    return prim, prim_norm, dual, dual_norm, (Ax, Px, Aty)
+
+
+def _primal_infeasible(d: _Scaled, dy, eps):
+    """OSQP's primal infeasibility certificate on δy (projected onto the polar recession cone):
+    ‖E δy‖ > ε, ‖D⁻¹Āᵀδy‖ ≤ ε‖E δy‖, ūᵀ(δy)₊ + l̄ᵀ(δy)₋ < −... < ε‖E δy‖ (scaled ⇔ unscaled)."""
+    dy = jnp.where(d.u_inf, jnp.minimum(dy, 0.0), dy)
+    dy = jnp.where(d.l_inf, jnp.maximum(dy, 0.0), dy)
+    norm_dy = _ninf(d.E * dy)
+    ub = jnp.sum(jnp.where(d.u_inf, 0.0, d.u * jnp.maximum(dy, 0.0)))
+    lb = jnp.sum(jnp.where(d.l_inf, 0.0, d.l * jnp.minimum(dy, 0.0)))
+    Aty = _ninf(_mtv(d.A, dy) / d.D)
+    return (norm_dy > eps) & (ub + lb < -eps * norm_dy) & (Aty < eps * norm_dy)
+
+
+def _dual_infeasible(d: _Scaled, dx, eps):
+    """OSQP's dual infeasibility certificate on δx: ‖Dδx‖ > ε, qᵀδx < −ε‖Dδx‖, ‖Pδx‖ ≤ ε‖Dδx‖,
+    (Aδx)_i ≤ ε‖Dδx‖ where u_i finite and ≥ −ε‖Dδx‖ where l_i finite (all unscaled)."""
+    norm_dx = _ninf(d.D * dx)
+    qdx = jnp.dot(d.q, dx, precision=_HI) / d.c
+    Pdx = _ninf(_mv(d.P, dx) / d.D) / d.c
+    Adx = _mv(d.A, dx) / d.E
+    tol = eps * norm_dx
+    a_ok = jnp.all(jnp.where(d.u_inf, True, Adx <= tol) & jnp.where(d.l_inf, True, Adx >= -tol))
+    return (norm_dx > eps) & (qdx < -tol) & (Pdx < tol) & a_ok
+
+
+def _check(d: _Scaled, s: Settings, x, z, y, dx, dy, factor: float):
+    """Termination test at (possibly loosened) tolerances; returns status (0 = keep going)."""
+    prim, prim_norm, dual, dual_norm, vecs = _residuals(d, x, z, y)
+    eps_p = factor * s.eps_abs + factor * s.eps_rel * prim_norm
+    eps_d = factor * s.eps_abs + factor * s.eps_rel * dual_norm
+    solved = (prim <= eps_p) & (dual <= eps_d)
+    pinf = _primal_infeasible(d, dy, factor * s.eps_prim_inf)
+    dinf = _dual_infeasible(d, dx, factor * s.eps_dual_inf)
+    return solved, pinf, dinf, prim, dual, vecs
+
+
+def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
+    """Solve one problem (no batch axes); traced under jit / vmap."""
+    dtype = q.dtype
+    n, m = P.shape[0], A.shape[0]
+    # Invalid data: non-finite P, q, A, NaN bounds or l > u.  Replaced by a harmless problem
+    # so that nothing non-finite enters the iteration; reported as UNSOLVED.
+    valid = (jnp.all(jnp.isfinite(P)) & jnp.all(jnp.isfinite(q)) & jnp.all(jnp.isfinite(A))
+             & ~jnp.any(jnp.isnan(l)) & ~jnp.any(jnp.isnan(u)) & jnp.all(l <= u))
+    if warm:  # a non-finite warm start is ignored (cold start), not an error
+        warm_ok = jnp.all(jnp.isfinite(x0)) & jnp.all(jnp.isfinite(y0))
+        x0 = jnp.where(warm_ok, x0, 0.0)
+        y0 = jnp.where(warm_ok, y0, 0.0)
+    P = jnp.where(valid, P, jnp.eye(n, dtype=dtype))
+    q = jnp.where(valid, q, 0.0)
+    A = jnp.where(valid, A, 0.0)
+    l = jnp.where(valid, l, -jnp.inf)
+    u = jnp.where(valid, u, jnp.inf)
+    P = 0.5 * (P + P.T)
+
+    # Infinite bounds: |bound| ≥ 1e20 → ±inf.
+    l_inf = l <= -INF_BOUND
+    u_inf = u >= INF_BOUND
+    l = jnp.where(l_inf, -jnp.inf, l)
+    u = jnp.where(u_inf, jnp.inf, u)
+
+    # Ruiz equilibration + cost scaling.
+    Ps, qs, As, D, E, c = _ruiz(P, q, A, s.scaling)
+    d = _Scaled(Ps, qs, As, E * l, E * u, l_inf, u_inf, D, E, c)
+
+    # Per-row ρ and the first factorisation.
+    rho = jnp.asarray(s.rho, dtype)
+    rho_vec = _rho_vec(rho, d)
+    F = _factor(d, s.sigma, rho_vec, s.linsys)
+
+    # Initial iterate: cold (0) or warm (x̄ = D⁻¹x, ȳ = c E⁻¹ y, z̄ = Āx̄).
+    if warm:
+        x = jnp.where(valid, x0 / D, 0.0)
+        y = jnp.where(valid, c * y0 / E, 0.0)
+        z = jnp.clip(_mv(d.A, x), d.l, d.u)
+    else:
+        x = jnp.zeros((n,), dtype)
+        y = jnp.zeros((m,), dtype)
+        z = jnp.zeros((m,), dtype)
+
+    zero = jnp.zeros((), dtype)
+    st = _State(x, z, y, jnp.zeros_like(x), jnp.zeros_like(y), rho, F,
+                jnp.zeros((), jnp.int32), jnp.where(valid, 0, UNSOLVED).astype(jnp.int32),
+                ~valid, zero + jnp.inf, zero + jnp.inf)
+
+    K = s.check_interval
+    exact_blocks = s.max_iter % K == 0
+    rho_every = s.adaptive_rho_interval
+
+    def block(st: _State) -> _State:
+        rho_vec = _rho_vec(st.rho, d)
+
+        def it_body(_, carry):
+            x, z, y, dx, dy, it = carry
+            xn, zn, yn = _admm_step(d, s, rho_vec, st.F, x, z, y)
+            if exact_blocks:
+                return xn, zn, yn, xn - x, yn - y, it + 1
+            go = it < s.max_iter  # honour max_iter exactly in the last, partial block
+            return (jnp.where(go, xn, x), jnp.where(go, zn, z), jnp.where(go, yn, y),
+                    jnp.where(go, xn - x, dx), jnp.where(go, yn - y, dy), it + go.astype(it.dtype))
+
+        x, z, y, dx, dy, it = lax.fori_loop(0, K, it_body, (st.x, st.z, st.y, st.dx, st.dy, st.it))
+
+        # Termination (unscaled OSQP criteria), then infeasibility certificates.
+        solved, pinf, dinf, prim, dual, (Ax, Px, Aty) = _check(d, s, x, z, y, dx, dy, 1.0)
+        status = jnp.where(solved, SOLVED, jnp.where(pinf, PRIMAL_INFEASIBLE,
+                           jnp.where(dinf, DUAL_INFEASIBLE, 0)))
+        at_max = it >= s.max_iter
+        a_solved, a_pinf, a_dinf, _, _, _ = _check(d, s, x, z, y, dx, dy, _INACCURATE_FACTOR)
+        status_max = jnp.where(a_solved, SOLVED_INACCURATE, jnp.where(
+            a_pinf, PRIMAL_INFEASIBLE_INACCURATE, jnp.where(a_dinf, DUAL_INFEASIBLE_INACCURATE, MAX_ITER)))
+        status = jnp.where((status == 0) & at_max, status_max, status)
+        finite = jnp.isfinite(prim) & jnp.isfinite(dual)
+        status = jnp.where(finite, status, UNSOLVED).astype(jnp.int32)
+        done = status != 0
+
+        # Adaptive ρ (OSQP's rule, scaled residual ratios), on the fixed interval.
+        rho, F = st.rho, st.F
+        if s.adaptive_rho:
+            pr = _ninf(Ax - z) / (jnp.maximum(_ninf(Ax), _ninf(z)) + _DIV_TOL)
+            du = _ninf(Px + d.q + Aty) / (
+                jnp.maximum(jnp.maximum(_ninf(Px), _ninf(Aty)), _ninf(d.q)) + _DIV_TOL)
+            rho_new = jnp.clip(st.rho * jnp.sqrt(pr / (du + _DIV_TOL)), _RHO_MIN, _RHO_MAX)
+            change = ((rho_new > st.rho * s.adaptive_rho_tolerance)
+                      | (rho_new < st.rho / s.adaptive_rho_tolerance))
+            change = change & (it % rho_every == 0) & ~done & jnp.isfinite(rho_new)
+            rho = jnp.where(change, rho_new, st.rho)
+            F = lax.cond(change, lambda: _factor(d, s.sigma, _rho_vec(rho, d), s.linsys),
+                         lambda: st.F)
+
+        new = _State(x, z, y, dx, dy, rho, F, it, status, done, prim, dual)
+        # A finished problem is frozen (matters under vmap, where the loop runs for the batch).
+        return jax.tree.map(lambda a, b: jnp.where(st.done, a, b), st, new)
+
+    st = lax.while_loop(lambda st: ~st.done, block, st)
+
+    # Unscale: x = D x̄, y = E ȳ / c, z = E⁻¹ z̄.
+    x = d.D * st.x
+    y = d.E * st.y / d.c
+    z = st.z / d.E
+    nan = jnp.asarray(jnp.nan, dtype)
+    x = jnp.where(valid, x, nan)
+    y = jnp.where(valid, y, nan)
+    z = jnp.where(valid, z, nan)
+    return Solution(x, y, z, st.status, st.it, st.prim_res, st.dual_res)
+
+
+def _solve_flat(P, q, A, l, u, x0, y0, settings: Settings, warm: bool, batched: bool):
+    with jax.default_matmul_precision("highest"):
+        f = lambda *a: _solve_one(*a, settings, warm)
+        if batched:
+            f = jax.vmap(f)
+        return f(P, q, A, l, u, x0, y0)
+
+
+_solve_jit = jax.jit(_solve_flat, static_argnames=("settings", "warm", "batched"))
+
+
+def solve(P, q, A, l, u, *, settings: Settings = Settings(),
+          warm_start: Optional[Tuple[jax.Array, jax.Array]] = None) -> Solution:
+    """Solve ``min ½xᵀPx + qᵀx  s.t.  l ≤ Ax ≤ u`` for one problem or a batch.
+
+    Args:
+      P: (…, n, n) symmetric PSD cost matrix (only its symmetric part is used).
+      q: (…, n) linear cost.
+      A: (…, m, n) constraint matrix.
+      l, u: (…, m) bounds; ±inf or |bound| ≥ 1e20 means unbounded.
+      settings: static ``Settings``.
+      warm_start: optional ``(x, y)`` with shapes (…, n), (…, m) (e.g. the previous solution of a
+        receding-horizon problem); z starts at A x.
+    Leading batch axes of all arguments broadcast against each other; the batch is vmapped
+    internally.  dtype is the inputs' common float type.  Works under ``jit`` and ``vmap``.
+
+    Returns:
+      ``Solution`` with the batch shape in front of every field.
+    """
+    validate_settings(settings)
+    P, q, A, l, u = (jnp.asarray(a) for a in (P, q, A, l, u))
+    dtype = jnp.result_type(P, q, A, l, u, float)
+    if warm_start is not None:
+        x0, y0 = (jnp.asarray(a) for a in warm_start)
+        dtype = jnp.result_type(dtype, x0, y0)
+    if P.ndim < 2 or P.shape[-1] != P.shape[-2]:
+        raise ValueError(f"P must have shape (..., n, n), got {P.shape}")
+    n = P.shape[-1]
+    if n < 1:
+        raise ValueError("P must have n >= 1 variables")
+    if q.ndim < 1 or q.shape[-1] != n:
+        raise ValueError(f"q must have shape (..., {n}), got {q.shape}")
+    if A.ndim < 2 or A.shape[-1] != n:
+        raise ValueError(f"A must have shape (..., m, {n}), got {A.shape}")
+    m = A.shape[-2]
+    for name, v in (("l", l), ("u", u)):
+        if v.ndim < 1 or v.shape[-1] != m:
+            raise ValueError(f"{name} must have shape (..., {m}), got {v.shape}")
+    if warm_start is not None:
+        if x0.ndim < 1 or x0.shape[-1] != n:
+            raise ValueError(f"warm_start x must have shape (..., {n}), got {x0.shape}")
+        if y0.ndim < 1 or y0.shape[-1] != m:
+            raise ValueError(f"warm_start y must have shape (..., {m}), got {y0.shape}")
+    else:
+        x0 = jnp.zeros((n,), dtype)
+        y0 = jnp.zeros((m,), dtype)
+    m_eff = m
+    if m == 0:  # no constraints: one free row keeps every shape non-empty
+        A = jnp.zeros(A.shape[:-2] + (1, n), dtype)
+        l = jnp.full(l.shape[:-1] + (1,), -jnp.inf, dtype)
+        u = jnp.full(u.shape[:-1] + (1,), jnp.inf, dtype)
+        y0 = jnp.zeros(y0.shape[:-1] + (1,), dtype)
+        m_eff = 1
+    batch = jnp.broadcast_shapes(P.shape[:-2], q.shape[:-1], A.shape[:-2], l.shape[:-1],
+                                 u.shape[:-1], x0.shape[:-1], y0.shape[:-1])
+    shapes = ((n, n), (n,), (m_eff, n), (m_eff,), (m_eff,), (n,), (m_eff,))
+    args = [jnp.broadcast_to(a.astype(dtype), batch + sh).reshape((-1,) + sh) if batch else
+            a.astype(dtype) for a, sh in zip((P, q, A, l, u, x0, y0), shapes)]
+    sol = _solve_jit(*args, settings=settings, warm=warm_start is not None, batched=bool(batch))
+    if batch:
+        sol = jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), sol)
+    if m == 0:
+        sol = sol._replace(y=sol.y[..., :0], z=sol.z[..., :0])
+    return sol
