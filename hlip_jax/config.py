@@ -55,8 +55,15 @@ class MPCConfig:
 
 @dataclass(frozen=True)
 class GainConfig:
-    """Stepping-law gain K in u = u_HLIP + K (x_robot - x_HLIP), per plane on [p, v]."""
+    """Stepping-law gain K in u = u_HLIP + K (x_robot - x_HLIP), per plane.
+
+    With ``with_position`` the gain acts on [c, p, v] (3-state: the global position error is
+    removed too, deadbeat in 3 steps); without it on [p, v] only (the global position error
+    then persists and is left to the planner)."""
     type: str = spec("deadbeat", doc="gain design", choices=("deadbeat", "lqr"))
+    with_position: bool = spec(True, doc="feed back the global COM position error c too",
+                               choices=(True, False))
+    q_c: float = spec(1.0, 0.0, 1e6, "LQR weight on c (with_position only)")
     q_p: float = spec(1.0, 0.0, 1e6, "LQR weight on p")
     q_v: float = spec(1.0, 0.0, 1e6, "LQR weight on v")
     r: float = spec(1.0, 1e-9, 1e6, "LQR weight on the step size")

@@ -89,15 +89,23 @@ class Log(NamedTuple):
 # configs → arrays
 
 def stepping_gain(cfg: ScenarioConfig) -> np.ndarray:
-    """K (2, 3) per plane on [c, p, v] (zero on c: the MPC handles global position)."""
+    """K (2, 3) per plane on [c, p, v]; the c entry is zero for a 2-state gain."""
     h, g = cfg.hlip, cfg.gain
-    if g.type == "deadbeat":
-        k = hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp, h.g)
+    if g.with_position:
+        if g.type == "deadbeat":
+            k = hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp, h.g, with_position=True)
+        else:
+            A, B = hlip.s2s_matrices(h.z0, h.t_ssp, h.t_dsp, h.g, with_position=True)
+            k = hlip.lqr_gain(A, B, jnp.diag(jnp.array([g.q_c, g.q_p, g.q_v])), jnp.array(g.r))
+        k = np.asarray(k, np.float64)
     else:
-        A, B = hlip.s2s_matrices(h.z0, h.t_ssp, h.t_dsp, h.g, with_position=False)
-        k = hlip.lqr_gain(A, B, jnp.diag(jnp.array([g.q_p, g.q_v])), jnp.array(g.r))
-    k = np.asarray(k, np.float64)
-    return np.tile(np.concatenate([[0.0], k]), (2, 1))
+        if g.type == "deadbeat":
+            k = hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp, h.g)
+        else:
+            A, B = hlip.s2s_matrices(h.z0, h.t_ssp, h.t_dsp, h.g, with_position=False)
+            k = hlip.lqr_gain(A, B, jnp.diag(jnp.array([g.q_p, g.q_v])), jnp.array(g.r))
+        k = np.concatenate([[0.0], np.asarray(k, np.float64)])
+    return np.tile(k, (2, 1))
 
 
 def n_steps_of(cfg: ScenarioConfig) -> int:

@@ -1,0 +1,174 @@
+"""Closed loop on the H-LIP plant: tracking, step limits, obstacles, pushes, failure isolation.
+
+All scenarios run in one compiled, vmapped call (a module fixture), as a sweep would.
+"""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np
+import pytest
+
+from hlip_jax import rollout
+from hlip_jax.config import (DisturbanceConfig, ObstacleConfig, PathConfig, PushConfig,
+                             ScenarioConfig)
+
+SHAPES = ("circle", "sinusoid", "square", "cardioid")
+SPEEDS = (0.3, 0.8)
+OBSTACLE = ObstacleConfig(x=2.0, y=0.0, radius=0.3)   # on the sinusoid's axis, crossed at x = 2
+PUSH = PushConfig(time=10.0, duration=0.1, force=200.0, direction=90.0)
+
+
+def _cases():
+    cases = {}
+    for shape in SHAPES:
+        for v in SPEEDS:
+            cases[f"{shape}-{v}"] = ScenarioConfig(
+                path=PathConfig(shape=shape, params=dict(peak_speed=v)), duration=40.0)
+    cases["obstacle"] = ScenarioConfig(
+        path=PathConfig(shape="sinusoid", params=dict(peak_speed=0.5)), duration=40.0,
+        obstacles=(OBSTACLE,))
+    cases["push"] = ScenarioConfig(
+        path=PathConfig(shape="line", params=dict(peak_speed=0.5, length=12.0)), duration=40.0,
+        disturbance=DisturbanceConfig(pushes=(PUSH,), mass=33.0))
+    cases["fall"] = ScenarioConfig(
+        path=PathConfig(shape="line", params=dict(peak_speed=0.5, length=12.0)), duration=40.0,
+        disturbance=DisturbanceConfig(pushes=(PushConfig(time=5.0, duration=1.0, force=4000.0),),
+                                      mass=33.0))
+    cases["measured"] = ScenarioConfig(
+        path=PathConfig(shape="circle", params=dict(peak_speed=0.5)), duration=40.0,
+        disturbance=DisturbanceConfig(noise_p=0.005, noise_v=0.02),
+        mpc=ScenarioConfig().mpc.__class__(mode="measured"))
+    cases["lqr"] = ScenarioConfig(
+        path=PathConfig(shape="circle", params=dict(peak_speed=0.5)), duration=40.0,
+        gain=ScenarioConfig().gain.__class__(type="lqr", q_p=10.0, q_v=1.0, r=1.0),
+        disturbance=DisturbanceConfig(noise_p=0.005, noise_v=0.02))
+    return cases
+
+
+@pytest.fixture(scope="module")
+def run():
+    cases = _cases()
+    names = list(cases)
+    log = rollout.simulate([cases[n] for n in names])
+    return names, cases, log
+
+
+def _idx(run, name):
+    return run[0].index(name)
+
+
+def _path_error(log, i):
+    v = log.valid[i]
+    return np.linalg.norm(log.x_robot[i, :, :, 0] - log.ref_pos[i], axis=-1)[v]
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("speed", SPEEDS)
+def test_paths_tracked(run, shape, speed):
+    """Acceptance: mean pre-impact COM-to-path error ≤ 0.10 m and final position within 0.10 m."""
+    _, _, log = run
+    i = _idx(run, f"{shape}-{speed}")
+    assert log.status[i] == rollout.STATUS_OK
+    err = _path_error(log, i)
+    assert err.mean() <= 0.10, err.mean()
+    assert err[-1] <= 0.10, err[-1]
+    assert np.all(log.qp_status[i][log.valid[i]] == 1)
+
+
+def test_step_limits_never_violated(run):
+    """Executed steps, rotated into the heading at the step instant, stay in the limits.
+    Tolerance 2e-3 m: the ADMM solves to eps 1e-4 (absolute and relative on O(1) rows)."""
+    names, cases, log = run
+    tol = 2e-3
+    for i, n in enumerate(names):
+        if n in ("fall", "push", "measured", "lqr"):
+            continue
+        m = cases[n].mpc
+        v = log.valid[i]
+        th = log.ref_heading[i]
+        u = log.u_robot[i]
+        length = u[:, 0] * np.cos(th) + u[:, 1] * np.sin(th)
+        width = -u[:, 0] * np.sin(th) + u[:, 1] * np.cos(th)
+        # step k is placed by the swing foot: left (width > 0) when the stance is right
+        sign = np.where(log.stance[i] == rollout.STANCE_RIGHT, 1.0, -1.0)
+        assert np.all(length[v] >= m.step_length_min - tol) and np.all(length[v] <= m.step_length_max + tol), n
+        sw = sign * width
+        assert np.all(sw[v] >= m.step_width_min - tol) and np.all(sw[v] <= m.step_width_max + tol), n
+
+
+def test_obstacle_keep_out(run):
+    """The executed pre-impact COM keeps the keep-out radius (−1 cm) and is back within
+    0.10 m of the path 10 steps after passing the obstacle."""
+    _, _, log = run
+    i = _idx(run, "obstacle")
+    v = log.valid[i]
+    c = log.x_robot[i, :, :, 0]
+    d = np.linalg.norm(c - [OBSTACLE.x, OBSTACLE.y], axis=-1)
+    assert np.all(d[v] >= OBSTACLE.radius - 0.01), d[v].min()
+    assert np.all(log.clearance[i][v] >= -0.01)
+    passed = int(np.argmax((c[:, 0] > OBSTACLE.x + OBSTACLE.radius) & v))
+    assert passed > 0
+    err = np.linalg.norm(c - log.ref_pos[i], axis=-1)
+    assert np.all(err[passed + 10:][v[passed + 10:]] <= 0.10)
+    # the obstacle actually pushed the COM off the path (the test is not vacuous)
+    assert err[v].max() > OBSTACLE.radius - 0.05
+
+
+def test_push_recovery(run):
+    """200 N lateral for 0.1 s at t = 10 s on 33 kg: back within 0.10 m of the H-LIP in 6 steps."""
+    _, _, log = run
+    i = _idx(run, "push")
+    assert log.status[i] == rollout.STATUS_OK
+    e = np.abs(log.e[i, :, :, :2]).max(axis=(1, 2))      # c and p errors [m]
+    k_push = int(np.floor(10.0 / log.t[i, 1] + 1e-9)) + 1  # first SSP- after the push began
+    assert e[k_push] > 0.02                              # the push is felt
+    assert np.all(e[k_push + 6:][log.valid[i, k_push + 6:]] <= 0.10)
+    assert np.all(np.isfinite(log.e[i][log.valid[i]]))
+
+
+def test_failure_is_isolated(run):
+    """A robot pushed over is marked and frozen; every other scenario of the batch gives the
+    same numbers as in a batch where that robot does not fall."""
+    names, cases, log = run
+    i = _idx(run, "fall")
+    assert log.status[i] == rollout.STATUS_FELL
+    assert log.fail_step[i] >= 0
+    assert not log.valid[i, log.fail_step[i] + 1:].any()
+    benign = [cases["push"] if n == "fall" else cases[n] for n in names]
+    other = rollout.simulate(benign)
+    for j, n in enumerate(names):
+        if n != "fall":
+            np.testing.assert_array_equal(other.x_robot[j], log.x_robot[j], err_msg=n)
+
+
+def test_disturbance_recursion(run):
+    """e_{k+1} = (A + BK) e_k + w_k holds on the log (the identity the invariant analysis uses)."""
+    _, _, log = run
+    i = _idx(run, "lqr")
+    A, B, K = log.A[i], log.B[i], log.K_gain[i]
+    v = log.valid[i]
+    for k in range(5, 40):
+        if not (v[k] and v[k + 1]):
+            continue
+        for p in range(2):
+            Acl = A + np.outer(B, K[p])
+            lhs = log.e[i, k + 1, p]
+            rhs = Acl @ log.e[i, k, p] + log.w[i, k, p]
+            # u_R − u_H = K e exactly (no placement error here), so only w remains
+            np.testing.assert_allclose(lhs, rhs, atol=1e-9)
+    # w is the plant's S2S noise: inside its box (|δp| ≤ 0.005 m on c and p, |δv| ≤ 0.02 m/s)
+    w = log.w[i][v]
+    w = w[np.isfinite(w).all(axis=(1, 2))]
+    assert len(w) > 50
+    assert np.abs(w[:, :, :2]).max() <= 0.005 + 1e-9
+    assert np.abs(w[:, :, 2]).max() <= 0.02 + 1e-9
+    assert np.abs(w[:, :, 2]).max() > 0.015          # and fills it
+
+
+def test_measured_mode_runs(run):
+    _, _, log = run
+    i = _idx(run, "measured")
+    assert log.status[i] == rollout.STATUS_OK
+    assert _path_error(log, i).mean() <= 0.10
