@@ -475,6 +475,19 @@ class Progress:
         self.stream.flush()
 
 
+def default_batch(n: int, cap: int | None = None) -> int:
+    """Chunk size for ``n`` scenarios: at most ``cap`` (16 on CPU, 1024 on accelerators) and
+    balanced, ceil(n / ceil(n / cap)), so the padded last chunk wastes little (20 → 10 + 10)."""
+    if cap is None:
+        try:
+            import jax
+            cap = 16 if jax.default_backend() == "cpu" else 1024
+        except Exception:   # pragma: no cover
+            cap = 16
+    n_chunks = max(1, math.ceil(n / cap))
+    return max(1, math.ceil(n / n_chunks))
+
+
 def _default_simulate():
     from hlip_jax import rollout
     return rollout.simulate
@@ -489,7 +502,7 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
     Args:
       sw: the validated sweep (:func:`hlip_jax.sweep.load_sweep`).
       out_dir: results directory (created).
-      batch: scenarios per chunk (one ``simulate`` call); default 16 on CPU, 1024 otherwise,
+      batch: scenarios per chunk (one ``simulate`` call); default :func:`default_batch`,
         capped at the number of scenarios.  On resume, the manifest's value unless given.
       resume: skip chunks already stored (config hash must match).
       overwrite: discard an existing run in ``out_dir`` (its manifest, chunks, summary).
@@ -510,11 +523,7 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
         if resume and old is not None:
             batch = int(old["batch"])
         else:
-            try:
-                import jax
-                batch = 16 if jax.default_backend() == "cpu" else 1024
-            except Exception:
-                batch = 16
+            batch = default_batch(n)
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise StoreError(f"--batch: expected an integer >= 1, got {batch!r}")
     batch = min(batch, n)

@@ -1,0 +1,220 @@
+"""``hlip-sweep``: run sweeps, write reports, list and inspect sweep files.
+
+    hlip-sweep run SWEEP [--out DIR] [--batch N] [--resume] [--overwrite]
+                         [--plant hlip|cassie] [--duration S] [--limit N]
+    hlip-sweep report DIR
+    hlip-sweep list
+    hlip-sweep show SWEEP [--plant ...] [--duration S] [--limit N]
+
+SWEEP is a path to a TOML sweep file or the name of a shipped one (``paper`` for
+``sweeps/paper.toml``).  Exit codes: 0 success; 1 the run finished but is incomplete
+(``--max-chunks``); 2 user error (bad sweep file, missing directory, refused resume) with a
+one-line message and no traceback; 130 interrupted (Ctrl-C; rerun with ``--resume``).
+
+``HLIP_SWEEP_SIMULATE=module:function`` replaces the closed loop
+(:func:`hlip_jax.rollout.simulate`) by another function of the same contract — used by tests
+and for trying alternative plants without editing the package.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from pathlib import Path
+
+EXIT_OK, EXIT_INCOMPLETE, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+PROG = "hlip-sweep"
+
+
+class UserError(Exception):
+    """Reported as one line on stderr, exit code 2."""
+
+
+def shipped_dir() -> Path:
+    """The ``sweeps/`` directory shipped next to the package (source checkout / editable)."""
+    return Path(__file__).resolve().parent.parent / "sweeps"
+
+
+def resolve_sweep(arg: str) -> Path:
+    """A sweep path, or a shipped sweep's name (``paper`` → ``sweeps/paper.toml``)."""
+    p = Path(arg)
+    if p.exists() or os.sep in arg:
+        return p
+    for cand in (shipped_dir() / arg, shipped_dir() / f"{arg}.toml"):
+        if cand.is_file():
+            return cand
+    return p   # load_sweep reports "not found"
+
+
+def _positive_int(s: str) -> int:
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {s!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {v}")
+    return v
+
+
+def _finite_float(s: str) -> float:
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {s!r}") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {s!r}")
+    return v
+
+
+def _sweep_overrides(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--plant", choices=("hlip", "cassie"),
+                   help="override the plant of every scenario")
+    p.add_argument("--duration", type=_finite_float, metavar="S",
+                   help="override the simulated time of every scenario [s]")
+    p.add_argument("--limit", type=_positive_int, metavar="N",
+                   help="keep only the first N scenarios")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog=PROG, description="Batch evaluator of H-LIP step planning: run a sweep of "
+        "closed-loop scenarios, store the step-to-step logs, and write a report.")
+    sub = ap.add_subparsers(dest="cmd", metavar="COMMAND")
+    sub.required = True
+
+    r = sub.add_parser("run", help="simulate every scenario of a sweep, then write the report",
+                       description="Simulate every scenario of SWEEP chunk by chunk into DIR "
+                       "(manifest.json, chunks/, summary.csv), then write the report.")
+    r.add_argument("sweep", metavar="SWEEP", help="sweep file, or the name of a shipped sweep")
+    r.add_argument("--out", metavar="DIR", help="results directory (default results/<sweep name>)")
+    r.add_argument("--batch", type=_positive_int, metavar="N",
+                   help="scenarios per chunk (one compiled call); default 16 on CPU, 1024 on "
+                   "accelerators, or the stored value with --resume")
+    r.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run in DIR (skips finished chunks)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="discard a previous run in DIR")
+    _sweep_overrides(r)
+    r.add_argument("--no-report", action="store_true", help="skip the report")
+    r.add_argument("--quiet", action="store_true", help="no progress output")
+    r.add_argument("--max-chunks", type=_positive_int, help=argparse.SUPPRESS)
+
+    rp = sub.add_parser("report", help="(re)write the report of a results directory",
+                        description="Write DIR/report.html, DIR/report.md and DIR/figures/.")
+    rp.add_argument("dir", metavar="DIR")
+
+    sub.add_parser("list", help="list the shipped sweeps", description="List sweeps/*.toml.")
+
+    s = sub.add_parser("show", help="expand a sweep and print its grid",
+                       description="Validate SWEEP and print its paths, axes and scenario count.")
+    s.add_argument("sweep", metavar="SWEEP")
+    _sweep_overrides(s)
+    s.add_argument("--scenarios", action="store_true", help="also list every scenario name")
+    return ap
+
+
+def _simulate_override():
+    spec = os.environ.get("HLIP_SWEEP_SIMULATE")
+    if not spec:
+        return None
+    mod, _, fn = spec.partition(":")
+    try:
+        return getattr(importlib.import_module(mod), fn)
+    except (ImportError, AttributeError) as err:
+        raise UserError(f"HLIP_SWEEP_SIMULATE={spec}: cannot load it: {err}") from None
+
+
+def _load(args):
+    from hlip_jax import sweep
+    return sweep.load_sweep(resolve_sweep(args.sweep), plant=args.plant,
+                            duration=args.duration, limit=args.limit)
+
+
+def cmd_run(args) -> int:
+    from hlip_jax import report, store
+    sw = _load(args)
+    out = Path(args.out) if args.out else Path("results") / sw.name
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a directory")
+    if args.resume and args.overwrite:
+        raise UserError("--resume and --overwrite exclude each other")
+    sim = _simulate_override()
+    if not args.quiet:
+        print(f"{PROG}: {sw.name}: {len(sw.scenarios)} scenarios -> {out}", file=sys.stderr)
+    res = store.run_sweep(sw, out, batch=args.batch, resume=args.resume,
+                          overwrite=args.overwrite, simulate=sim, max_chunks=args.max_chunks,
+                          progress=not args.quiet)
+    if not res.complete:
+        print(f"{PROG}: stopped after {res.chunks_run} chunk(s); {out} is incomplete: "
+              f"continue with `{PROG} run {args.sweep} --out {out} --resume`", file=sys.stderr)
+        return EXIT_INCOMPLETE
+    print(f"results: {out} ({res.n_scenarios} scenarios, {res.seconds:.1f} s)")
+    if not args.no_report:
+        html, md = report.write_report(out)
+        print(f"report: {html}")
+        print(f"        {md}")
+    return EXIT_OK
+
+
+def cmd_report(args) -> int:
+    from hlip_jax import report
+    d = Path(args.dir)
+    if not d.is_dir():
+        raise UserError(f"{d}: results directory not found")
+    html, md = report.write_report(d)
+    print(f"report: {html}")
+    print(f"        {md}")
+    return EXIT_OK
+
+
+def cmd_list(args) -> int:
+    import tomllib
+    files = sorted(shipped_dir().glob("*.toml"))
+    if not files:
+        raise UserError(f"no shipped sweeps found in {shipped_dir()}")
+    from hlip_jax import sweep
+    for f in files:
+        try:
+            sw = sweep.load_sweep(f)
+            n = f"{sw.total:5d} scenarios"
+            desc = sw.description
+        except sweep.SweepError as err:
+            n, desc = "  invalid", str(err)
+        except tomllib.TOMLDecodeError as err:  # pragma: no cover - load_sweep wraps it
+            n, desc = "  invalid", str(err)
+        print(f"{f.stem:16s} {n}  {desc}")
+    return EXIT_OK
+
+
+def cmd_show(args) -> int:
+    sw = _load(args)
+    print(sw.describe())
+    if args.scenarios:
+        for i, c in enumerate(sw.scenarios):
+            print(f"  {i:5d}  {c.name}  (seed {c.seed})")
+    return EXIT_OK
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``hlip-sweep`` console script; returns the exit code."""
+    from hlip_jax.report import ReportError
+    from hlip_jax.store import StoreError
+    from hlip_jax.sweep import SweepError
+
+    args = build_parser().parse_args(argv)
+    handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show}[args.cmd]
+    try:
+        return handler(args)
+    except (UserError, SweepError, StoreError, ReportError) as err:
+        print(f"{PROG}: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"\n{PROG}: interrupted; finished chunks are kept: rerun with --resume",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

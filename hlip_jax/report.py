@@ -1,0 +1,501 @@
+"""Report of a results directory: ``report.html``, ``report.md`` and ``figures/*.png``.
+
+Reads only the store (``manifest.json``, ``chunks/``, ``summary.csv``; see
+:mod:`hlip_jax.store`).  Contents:
+
+* Overview: sweep, scenario counts per status, environment (versions, JAX backend, commit).
+* Per path (one ``[[paths]]`` entry; its representative scenario is the first one that
+  finished "ok", else the first): the paper-style figures —
+  the x–y plane (desired path red, H-LIP COM blue, robot COM green, obstacles grey),
+  global position and velocity against time (reference dashed), and the step sizes in the
+  sagittal and lateral planes (steps rotated into the path heading θ_d(t_k)); the invariant-set
+  figure per plane (:func:`hlip_jax.invariant.plot_planes`: E of the [p, v] error dynamics
+  with the observed errors); and a coverage table — W, E and the in-sample bracket
+  (inner F_s, outer F_s/(1−α)) from all runs of that path sharing the representative's gain,
+  plus held-out coverage (W from half of those runs, coverage on the other half; with a single
+  run, the per-run figure of ``summary.csv``: W from the first half of its steps).
+* Grid sweeps: heat maps of success rate and mean RMS tracking error over the first two
+  swept dimensions (grid axes, and the path when there are several), averaged over the rest.
+* Failures (status ≠ ok) and the per-scenario summary table.
+
+matplotlib runs with the Agg backend; every figure is a PNG next to the report.
+"""
+
+from __future__ import annotations
+
+import html
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from hlip_jax import store
+
+__all__ = ["ReportError", "write_report", "FIGURE_KINDS"]
+
+FIGURE_KINDS = ("xy", "time", "steps", "invariant")
+MAX_TABLE_ROWS = 500
+DPI = 90
+
+
+class ReportError(RuntimeError):
+    """The results directory cannot be reported (one clear line)."""
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _slug(s: str) -> str:
+    out = "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
+    return out.strip("_") or "x"
+
+
+def _fmt(v, digits=4) -> str:
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "–"
+        if math.isinf(v):
+            return "∞" if v > 0 else "−∞"
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+# --------------------------------------------------------------------------------------------
+# figures of one scenario
+
+
+def _mask(log, s=0):
+    return np.cumprod(np.asarray(log["valid"][s], bool)).astype(bool)
+
+
+def fig_xy(log, cfg: dict, path: Path, title: str) -> None:
+    plt = _plt()
+    m = _mask(log)
+    fig, ax = plt.subplots(figsize=(6, 5.5))
+    r = log["ref_pos"][0][m]
+    ax.plot(r[:, 0], r[:, 1], "r-", lw=2, label="desired path")
+    h = log["x_hlip"][0][m][:, :, 0]
+    ax.plot(h[:, 0], h[:, 1], "b.-", ms=3, lw=1, label="H-LIP COM")
+    c = log["x_robot"][0][m][:, :, 0]
+    ax.plot(c[:, 0], c[:, 1], "g.-", ms=3, lw=1, label="robot COM")
+    for o in cfg.get("obstacles", []):
+        ax.add_patch(plt.Circle((o["x"], o["y"]), o["radius"], color="0.5", alpha=0.5))
+    if c.shape[0]:
+        ax.plot(*c[-1], "gx", ms=8)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8, loc="upper right")
+    ax.grid(alpha=0.3)
+    fig.subplots_adjust(left=0.13, right=0.97, bottom=0.1, top=0.93)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def fig_time(log, path: Path, title: str) -> None:
+    plt = _plt()
+    m = _mask(log)
+    t = log["t"][0][m]
+    fig, axs = plt.subplots(2, 2, figsize=(9, 5.5), sharex=True)
+    for p, plane in enumerate("xy"):
+        ax = axs[0, p]
+        ax.plot(t, log["ref_pos"][0][m][:, p], "r--", label="desired")
+        ax.plot(t, log["x_hlip"][0][m][:, p, 0], "b-", lw=1, label="H-LIP")
+        ax.plot(t, log["x_robot"][0][m][:, p, 0], "g-", lw=1, label="robot")
+        ax.set_ylabel(f"{plane} [m]")
+        ax = axs[1, p]
+        ax.plot(t, log["ref_vel"][0][m][:, p], "r--", label="desired")
+        ax.plot(t, log["x_hlip"][0][m][:, p, 2], "b.-", ms=2, lw=1, label="H-LIP")
+        ax.plot(t, log["x_robot"][0][m][:, p, 2], "g.-", ms=2, lw=1, label="robot")
+        ax.set_ylabel(f"v{plane} [m/s]")
+        ax.set_xlabel("t [s] (pre-impact samples)")
+    for ax in axs.flat:
+        ax.grid(alpha=0.3)
+    axs[0, 0].legend(fontsize=8)
+    fig.suptitle(title + " — global position and velocity", fontsize=9)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.1, top=0.92, wspace=0.25, hspace=0.12)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def heading_frame_steps(u, heading):
+    """Step sizes (…, 2) in the world frame → (sagittal, lateral) in the heading frame θ."""
+    c, s = np.cos(heading), np.sin(heading)
+    return np.stack([c * u[..., 0] + s * u[..., 1], -s * u[..., 0] + c * u[..., 1]], axis=-1)
+
+
+def fig_steps(log, path: Path, title: str) -> None:
+    plt = _plt()
+    m = _mask(log)
+    t = log["t"][0][m]
+    th = log["ref_heading"][0][m]
+    ur = heading_frame_steps(log["u_robot"][0][m], th)
+    uh = heading_frame_steps(log["u_hlip"][0][m], th)
+    fig, axs = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    for p, name in enumerate(("sagittal (step length)", "lateral (step width)")):
+        axs[p].plot(t, uh[:, p], "b.-", ms=3, lw=1, label="H-LIP u")
+        axs[p].plot(t, ur[:, p], "g.-", ms=3, lw=1, label="robot u")
+        axs[p].set_ylabel(f"{name} [m]")
+        axs[p].grid(alpha=0.3)
+    axs[0].legend(fontsize=8)
+    axs[1].set_xlabel("t [s]")
+    fig.suptitle(title + " — step sizes in the path's heading frame", fontsize=9)
+    fig.subplots_adjust(left=0.12, right=0.98, bottom=0.1, top=0.92, hspace=0.1)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------------------------
+# invariant sets
+
+
+def _plane_mats(log, s):
+    A = np.asarray(log["A"][s], np.float64)[1:, 1:]
+    B = np.asarray(log["B"][s], np.float64)[1:]
+    K = np.asarray(log["K_gain"][s], np.float64)
+    K = K[:, 1:] if K.shape[-1] == 3 else K
+    return A, B, K
+
+
+def invariant_analysis(log, members: list[int]):
+    """:func:`hlip_jax.invariant.analyse` on the [p, v] errors of ``members`` (rows of ``log``,
+    same A, B, K): W box, held-out half when there are ≥ 2 runs."""
+    from hlip_jax import invariant as inv
+    A, B, K = _plane_mats(log, members[0])
+    sel = np.asarray(members)
+    valid = np.cumprod(np.asarray(log["valid"][sel], bool), axis=1).astype(bool)
+    hold = 0.5 if len(members) >= 2 else 0.0
+    return inv.analyse(log["x_robot"][sel], log["u_robot"][sel], valid, log["e"][sel],
+                       A, B, K, W_estimator="box", holdout_fraction=hold, seed=0)
+
+
+def fig_invariant(an, log, members, path: Path, title: str) -> None:
+    from hlip_jax import invariant as inv
+    plt = _plt()
+    sel = np.asarray(members)
+    valid = np.cumprod(np.asarray(log["valid"][sel], bool), axis=1).astype(bool)
+    e = np.asarray(log["e"][sel], np.float64)[..., 1:][valid]        # (n, 2, 2) [p, v]
+    fig = inv.plot_planes((an.planes[0].E, an.planes[1].E), (e[:, 0], e[:, 1]),
+                          title=title + " — error invariant sets E ([p, v]) and errors e_k")
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def _coverage_rows(an, n_runs: int, row_summary: dict | None) -> list[list[str]]:
+    rows = []
+    for p, plane in enumerate(("sagittal (x)", "lateral (y)")):
+        pa = an.planes[p]
+        W = pa.W
+        wlo = ", ".join(f"{v:.3g}" for v in np.asarray(W.lo)) if hasattr(W, "lo") else "hull"
+        whi = ", ".join(f"{v:.3g}" for v in np.asarray(W.hi)) if hasattr(W, "hi") else ""
+        if pa.heldout is not None:
+            held = f"{_fmt(pa.heldout.inner)} – {_fmt(pa.heldout.outer)} (n={pa.heldout.n})"
+        elif row_summary is not None:
+            held = f"{_fmt(row_summary.get(f'cov_{plane[-2]}_heldout', math.nan))} (later half of the steps)"
+        else:
+            held = "–"
+        rows.append([plane, f"[{wlo}] – [{whi}]", str(pa.s), f"{pa.alpha:.3g}",
+                     f"{pa.volume:.3g}",
+                     f"{_fmt(pa.coverage.inner)} – {_fmt(pa.coverage.outer)} (n={pa.coverage.n})",
+                     held])
+    return rows
+
+
+COVERAGE_HEAD = ["plane", "W box [p, v] lo – hi", "s", "α", "area of E",
+                 "in-sample coverage (inner – outer)", "held-out coverage"]
+
+
+# --------------------------------------------------------------------------------------------
+# heat maps
+
+
+def _dims(man: dict) -> list[tuple[str, list]]:
+    """Swept dimensions: (label, values) for every grid axis, then 'path' if several."""
+    dims = []
+    for a in man.get("axes", []):
+        label = " / ".join(a["fields"])
+        vals = [tuple(v) if len(v) > 1 else v[0] for v in a["values"]]
+        dims.append((label, vals, a["fields"]))
+    if len(man.get("paths", [])) > 1:
+        dims.append(("path", list(man["paths"]), ["path"]))
+    return dims
+
+
+def _point_of(cfg: dict, fields: list[str]):
+    sw = cfg.get("swept", {})
+    vals = [sw.get(f) for f in fields]
+    return vals[0] if len(vals) == 1 else tuple(vals)
+
+
+def heatmaps(man: dict, rows: list[dict], fig_dir: Path) -> list[tuple[str, str]]:
+    """Success-rate and mean-RMS-error maps over the first two swept dimensions."""
+    dims = _dims(man)
+    if len(dims) < 2:
+        return []
+    plt = _plt()
+    (la, va, fa), (lb, vb, fb) = dims[0], dims[1]
+    ka = {repr(v): i for i, v in enumerate(va)}
+    kb = {repr(v): i for i, v in enumerate(vb)}
+    ok = np.zeros((len(va), len(vb)))
+    cnt = np.zeros((len(va), len(vb)))
+    err = np.zeros((len(va), len(vb)))
+    ecnt = np.zeros((len(va), len(vb)))
+    cfgs = man["configs"]
+    for r in rows:
+        cfg = cfgs[int(r["index"])]
+        pa, pb = _point_of(cfg, fa), _point_of(cfg, fb)
+        ia, ib = ka.get(repr(pa)), kb.get(repr(pb))
+        if ia is None or ib is None:
+            continue
+        cnt[ia, ib] += 1
+        ok[ia, ib] += r["status"] == "ok"
+        e = r.get("rms_track_err")
+        if isinstance(e, (int, float)) and math.isfinite(e):
+            err[ia, ib] += e
+            ecnt[ia, ib] += 1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rate = np.where(cnt > 0, ok / cnt, np.nan)
+        merr = np.where(ecnt > 0, err / ecnt, np.nan)
+    out = []
+    for name, data, cmap, clabel in (("success", rate, "RdYlGn", "success rate"),
+                                     ("error", merr, "viridis", "mean RMS tracking error [m]")):
+        fig, ax = plt.subplots(figsize=(1.2 + 0.7 * len(vb) + 2, 1.2 + 0.5 * len(va) + 1))
+        im = ax.imshow(data, cmap=cmap, aspect="auto", origin="lower",
+                       vmin=0.0 if name == "success" else None,
+                       vmax=1.0 if name == "success" else None)
+        ax.set_xticks(range(len(vb)), [_fmt(v, 3) if not isinstance(v, tuple) else
+                                       "(" + ", ".join(_fmt(x, 3) for x in v) + ")" for v in vb],
+                      rotation=45 if len(vb) > 4 else 0, ha="right" if len(vb) > 4 else "center",
+                      fontsize=7)
+        ax.set_yticks(range(len(va)), [_fmt(v, 3) if not isinstance(v, tuple) else
+                                       "(" + ", ".join(_fmt(x, 3) for x in v) + ")" for v in va],
+                      fontsize=7)
+        ax.set_xlabel(lb), ax.set_ylabel(la)
+        for i in range(len(va)):
+            for j in range(len(vb)):
+                if not np.isnan(data[i, j]):
+                    ax.text(j, i, _fmt(float(data[i, j]), 2), ha="center", va="center",
+                            fontsize=6, color="k")
+        fig.colorbar(im, ax=ax, label=clabel)
+        ax.set_title(f"{clabel} over {la} × {lb}", fontsize=9)
+        fig.tight_layout()  # tick labels of unknown length: worth the cost for 2 figures
+        fn = f"heatmap_{name}.png"
+        fig.savefig(fig_dir / fn, dpi=DPI)
+        plt.close(fig)
+        out.append((clabel, f"figures/{fn}"))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# document assembly
+
+
+class _Doc:
+    """Collects report content and renders it as HTML and Markdown."""
+
+    def __init__(self):
+        self.parts: list[tuple] = []
+
+    def h(self, level, text):
+        self.parts.append(("h", level, text))
+
+    def p(self, text):
+        self.parts.append(("p", text))
+
+    def table(self, head, rows):
+        self.parts.append(("table", head, rows))
+
+    def img(self, src, alt):
+        self.parts.append(("img", src, alt))
+
+    def html(self, title) -> str:
+        out = ["<!DOCTYPE html>", "<html><head><meta charset='utf-8'>",
+               f"<title>{html.escape(title)}</title>",
+               "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;"
+               "padding:0 1em;color:#222}table{border-collapse:collapse;font-size:12px;"
+               "margin:0.5em 0 1.5em}td,th{border:1px solid #ccc;padding:2px 6px;"
+               "text-align:right}th{background:#f0f0f0}td:first-child,th:first-child"
+               "{text-align:left}img{max-width:100%;margin:0.3em 0}.bad{color:#b00}"
+               "h2{border-bottom:1px solid #ccc;margin-top:2em}</style></head><body>"]
+        for part in self.parts:
+            if part[0] == "h":
+                out.append(f"<h{part[1]}>{html.escape(part[2])}</h{part[1]}>")
+            elif part[0] == "p":
+                out.append(f"<p>{html.escape(part[1])}</p>")
+            elif part[0] == "img":
+                out.append(f"<div><img src='{html.escape(part[1])}' "
+                           f"alt='{html.escape(part[2])}'></div>")
+            else:
+                out.append("<table><tr>" + "".join(f"<th>{html.escape(str(c))}</th>"
+                                                   for c in part[1]) + "</tr>")
+                for r in part[2]:
+                    out.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r)
+                               + "</tr>")
+                out.append("</table>")
+        out.append("</body></html>")
+        return "\n".join(out) + "\n"
+
+    def markdown(self) -> str:
+        out = []
+        for part in self.parts:
+            if part[0] == "h":
+                out.append("#" * part[1] + " " + part[2] + "\n")
+            elif part[0] == "p":
+                out.append(part[1] + "\n")
+            elif part[0] == "img":
+                out.append(f"![{part[2]}]({part[1]})\n")
+            else:
+                esc = lambda c: str(c).replace("|", "\\|")  # noqa: E731
+                out.append("| " + " | ".join(esc(c) for c in part[1]) + " |")
+                out.append("|" + "---|" * len(part[1]))
+                for r in part[2]:
+                    out.append("| " + " | ".join(esc(c) for c in r) + " |")
+                out.append("")
+        return "\n".join(out) + "\n"
+
+
+def _representatives(man, rows):
+    by_path: dict[str, list[dict]] = {}
+    for r in rows:
+        by_path.setdefault(str(r["path"]), []).append(r)
+    reps = {}
+    for pname in man.get("paths", []) or list(by_path):
+        rs = by_path.get(pname, [])
+        if rs:
+            ok = [r for r in rs if r["status"] == "ok"]
+            reps[pname] = ((ok or rs)[0], rs)
+    return reps
+
+
+def write_report(out_dir) -> tuple[Path, Path]:
+    """Write ``report.html``, ``report.md`` and ``figures/`` for a results directory.
+
+    Returns (html path, markdown path).  Raises :class:`ReportError` if the directory is not a
+    complete results directory.
+    """
+    out = Path(out_dir)
+    try:
+        man = store.read_manifest(out)
+    except store.StoreError as err:
+        raise ReportError(str(err)) from None
+    if not store.chunk_files(out):
+        raise ReportError(f"{out}: no results stored yet (no chunks)")
+    if not (out / store.SUMMARY).is_file():
+        if man.get("status") != "complete":
+            raise ReportError(f"{out}: the run is incomplete; finish it with `hlip-sweep run "
+                              f"... --resume` first")
+        store.write_summary(out)
+    rows = store.read_summary(out)
+    fig_dir = out / "figures"
+    fig_dir.mkdir(exist_ok=True)
+    cfgs = man["configs"]
+
+    doc = _Doc()
+    title = f"hlip_jax sweep report: {man.get('sweep_name', out.name)}"
+    doc.h(1, title)
+    if man.get("description"):
+        doc.p(man["description"])
+    counts: dict[str, int] = {}
+    for r in rows:
+        counts[r["status"]] = counts.get(r["status"], 0) + 1
+    jaxinfo = man.get("jax", {})
+    doc.table(["item", "value"], [
+        ["sweep file", man.get("sweep_file", "")],
+        ["scenarios", f"{len(rows)} of {man.get('n_scenarios')}"],
+        ["status", ", ".join(f"{k}: {v}" for k, v in sorted(counts.items()))],
+        ["paths", ", ".join(man.get("paths", []))],
+        ["grid axes", "; ".join(" / ".join(a["fields"]) + f" ({len(a['values'])})"
+                                for a in man.get("axes", [])) or "none"],
+        ["chunk size", man.get("batch")],
+        ["JAX", f"{man.get('versions', {}).get('jax', '?')} on {jaxinfo.get('backend', '?')} "
+                f"({', '.join(jaxinfo.get('devices', []))})"],
+        ["git commit", man.get("git_commit") or "–"],
+        ["started / ended", f"{man.get('start_time')} / {man.get('end_time')}"],
+        ["simulation time", f"{man.get('seconds', math.nan):.1f} s"],
+    ])
+
+    reps = _representatives(man, rows)
+    cov_summary = []
+    for pname, (rep, members_rows) in reps.items():
+        idx = int(rep["index"])
+        cfg = cfgs[idx]
+        slug = _slug(pname)
+        doc.h(2, f"Path: {pname}")
+        params = ", ".join(f"{k}={v}" for k, v in cfg["path"]["params"].items())
+        doc.p(f"shape {cfg['path']['shape']} ({params or 'defaults'}); "
+              f"{len(members_rows)} scenario(s); figures show scenario #{idx} "
+              f"'{cfg['name']}' (status {rep['status']}).")
+        member_ids = [int(r["index"]) for r in members_rows]
+        log = store.load_log(out, member_ids)
+        pos = {int(i): j for j, i in enumerate(log["index"])}
+        one = {k: v[pos[idx]:pos[idx] + 1] for k, v in log.items()}
+        label = f"{pname}: {cfg['name']}"
+        fig_xy(one, cfg, fig_dir / f"{slug}_xy.png", label)
+        doc.img(f"figures/{slug}_xy.png", f"{pname} x-y plane")
+        fig_time(one, fig_dir / f"{slug}_time.png", label)
+        doc.img(f"figures/{slug}_time.png", f"{pname} position and velocity")
+        fig_steps(one, fig_dir / f"{slug}_steps.png", label)
+        doc.img(f"figures/{slug}_steps.png", f"{pname} step sizes")
+
+        # runs of this path with the representative's S2S model and gain
+        A0, B0, K0 = _plane_mats(log, pos[idx])
+        same = [pos[i] for i in member_ids
+                if all(np.allclose(x, y) for x, y in zip(_plane_mats(log, pos[i]), (A0, B0, K0)))
+                and bool(np.asarray(log["valid"][pos[i]]).any())]
+        doc.h(3, "Error invariant sets and coverage")
+        try:
+            an = invariant_analysis(log, same)
+            fig_invariant(an, log, same, fig_dir / f"{slug}_invariant.png", pname)
+            doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")
+            doc.p(f"W and E from {len(same)} run(s) sharing the gain of scenario #{idx}; "
+                  "E is the mRPI set of e⁺ = (A + BK) e + w on [p, v] (Raković et al. 2005), "
+                  "coverage = fraction of observed errors inside E (bracket inner F_s – outer "
+                  "F_s/(1−α)); held-out: W from half of the runs, coverage on the others.")
+            doc.table(COVERAGE_HEAD, _coverage_rows(an, len(same), rep))
+            for p, plane in enumerate(("x", "y")):
+                pa = an.planes[p]
+                cov_summary.append([pname, plane, len(same), _fmt(pa.coverage.inner),
+                                    _fmt(pa.coverage.outer),
+                                    _fmt(pa.heldout.outer) if pa.heldout else
+                                    _fmt(rep.get(f"cov_{plane}_heldout", math.nan))])
+        except Exception as err:   # unstable gain, too few samples: say so, keep going
+            doc.p(f"invariant analysis not available for this path: {type(err).__name__}: {err}")
+
+    if cov_summary:
+        doc.h(2, "Coverage summary")
+        doc.table(["path", "plane", "runs", "in-sample inner", "in-sample outer",
+                   "held-out"], cov_summary)
+
+    hm = heatmaps(man, rows, fig_dir)
+    if hm:
+        doc.h(2, "Grid: success and error maps")
+        for alt, src in hm:
+            doc.img(src, alt)
+
+    bad = [r for r in rows if r["status"] != "ok"]
+    doc.h(2, f"Failures ({len(bad)})")
+    if bad:
+        doc.table(["#", "scenario", "status", "fail step", "steps"],
+                  [[r["index"], r["name"], r["status"], r["fail_step"], r["steps"]]
+                   for r in bad[:MAX_TABLE_ROWS]])
+    else:
+        doc.p("none: every scenario finished ok.")
+
+    doc.h(2, "Per-scenario summary")
+    cols = ["index", "name", "status", "rms_track_err", "max_track_err", "final_pos_err",
+            "cov_x_outer", "cov_y_outer", "cov_x_heldout", "cov_y_heldout", "qp_failures",
+            "min_clearance"]
+    doc.p(f"All columns in summary.csv ({len(rows)} rows); errors in m.")
+    doc.table(cols, [[_fmt(r.get(c, "")) for c in cols] for r in rows[:MAX_TABLE_ROWS]])
+    if len(rows) > MAX_TABLE_ROWS:
+        doc.p(f"… {len(rows) - MAX_TABLE_ROWS} more rows in summary.csv")
+
+    html_p, md_p = out / "report.html", out / "report.md"
+    store.write_atomic(html_p, doc.html(title))
+    store.write_atomic(md_p, doc.markdown())
+    return html_p, md_p

@@ -1,0 +1,76 @@
+"""Report of a results directory (hlip_jax.report): every figure and table is present.
+
+Runs the tiny sweep of test_store.py through its fake closed loop (the report only reads the
+store, so the closed loop does not matter here) and checks the HTML/Markdown for each item.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_store import TINY, fake_simulate  # noqa: E402
+
+from hlip_jax import report, store, sweep  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def tiny_report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rep") / "tiny"
+    store.run_sweep(sweep.parse_sweep(TINY), out, batch=4, progress=False, simulate=fake_simulate)
+    html_p, md_p = report.write_report(out)
+    return out, html_p.read_text(), md_p.read_text()
+
+
+def test_every_figure_exists_and_is_referenced(tiny_report):
+    out, html, md = tiny_report
+    for path in ("circle", "line"):
+        for kind in report.FIGURE_KINDS:
+            f = out / "figures" / f"{path}_{kind}.png"
+            assert f.is_file() and f.stat().st_size > 1000, f
+            assert f"figures/{path}_{kind}.png" in html
+            assert f"figures/{path}_{kind}.png" in md
+    for name in ("success", "error"):
+        assert (out / "figures" / f"heatmap_{name}.png").is_file()
+        assert f"figures/heatmap_{name}.png" in html
+    # every <img> points at an existing file: the report is self-contained but for figures/
+    for src in re.findall(r"<img src='([^']+)'", html):
+        assert (out / src).is_file(), src
+    assert "<script" not in html and "http" not in html
+
+
+def test_tables(tiny_report):
+    _, html, md = tiny_report
+    for head in report.COVERAGE_HEAD:
+        assert head in md
+    assert md.count("| sagittal (x) |") == 2 and md.count("| lateral (y) |") == 2
+    assert "Coverage summary" in md and "held-out" in md
+    assert "## Failures (2)" in md and "fell" in md
+    assert "Per-scenario summary" in md
+    assert md.count("circle/gain.type=") >= 4
+    assert "<table>" in html and "Path: circle" in html and "Path: line" in html
+
+
+def test_heading_frame_steps():
+    # a step of (1, 0) in the world seen from heading 90° is (0, -1): 1e-15 rounding only
+    u = np.array([[1.0, 0.0], [0.0, 2.0]])
+    th = np.array([np.pi / 2, np.pi / 2])
+    np.testing.assert_allclose(report.heading_frame_steps(u, th), [[0.0, -1.0], [2.0, 0.0]],
+                               atol=1e-15)
+
+
+def test_report_errors(tmp_path):
+    with pytest.raises(report.ReportError, match="not found"):
+        report.write_report(tmp_path / "missing")
+    with pytest.raises(report.ReportError, match="not a results directory"):
+        report.write_report(tmp_path)
+    out = tmp_path / "part"
+    store.run_sweep(sweep.parse_sweep(TINY), out, batch=4, progress=False,
+                    simulate=fake_simulate, max_chunks=1)
+    with pytest.raises(report.ReportError, match="incomplete"):
+        report.write_report(out)
