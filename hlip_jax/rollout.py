@@ -19,6 +19,7 @@ a robot that falls is frozen from that step on and marked; neither touches other
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Callable, NamedTuple, Sequence
 
@@ -90,7 +91,10 @@ class Log(NamedTuple):
 
 def stepping_gain(cfg: ScenarioConfig) -> np.ndarray:
     """K (2, 3) per plane on [c, p, v]; the c entry is zero for a 2-state gain."""
-    h, g = cfg.hlip, cfg.gain
+    return _cached_gain(cfg.hlip, cfg.gain).copy()
+
+
+def _stepping_gain(h, g) -> np.ndarray:
     if g.with_position:
         if g.type == "deadbeat":
             k = hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp, h.g, with_position=True)
@@ -112,14 +116,46 @@ def n_steps_of(cfg: ScenarioConfig) -> int:
     return int(math.ceil(cfg.duration / (cfg.hlip.t_ssp + cfg.hlip.t_dsp) - 1e-9))
 
 
+def _freeze(v):
+    if isinstance(v, dict):
+        return tuple(sorted((k, _freeze(x)) for k, x in v.items()))
+    if isinstance(v, (list, tuple)):
+        return tuple(_freeze(x) for x in v)
+    return v
+
+
+@functools.lru_cache(maxsize=4096)
+def _cached_path(shape: str, frozen: tuple) -> paths.Path:
+    params = {k: (list(map(list, v)) if isinstance(v, tuple) else v) for k, v in frozen}
+    return jax.tree.map(np.asarray, paths.make_path(shape, **params))
+
+
 def _path_of(cfg: ScenarioConfig, t_final: float, n_samples: int) -> paths.Path:
+    """The path table of a scenario (memoised: a sweep repeats the same paths many times).
+    The table length and time span are set by the batch so every path has the same shape."""
     params = dict(cfg.path.params)
-    params.setdefault("t_final", t_final)
-    params.setdefault("n_samples", n_samples)
-    return paths.make_path(cfg.path.shape, **params)
+    params["t_final"] = t_final
+    params["n_samples"] = n_samples
+    return _cached_path(cfg.path.shape, _freeze(params))
 
 
-def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=jnp.float64):
+@functools.lru_cache(maxsize=4096)
+def _cached_s2s(h) -> tuple[np.ndarray, np.ndarray]:
+    A, B = hlip.s2s_matrices(h.z0, h.t_ssp, h.t_dsp, h.g)
+    return np.asarray(A, np.float64), np.asarray(B, np.float64)
+
+
+@functools.lru_cache(maxsize=4096)
+def _cached_gain(hlip_cfg, gain_cfg) -> np.ndarray:
+    return _stepping_gain(hlip_cfg, gain_cfg)
+
+
+def default_dtype():
+    """float64 where JAX has x64 enabled (CPU runs, tests), else float32 (GPU)."""
+    return jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+
+
+def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=None):
     """Validated configs → (Scenario batch, Static).  The horizon, the QP settings and the
     plant must agree across the batch (they are shapes / static settings)."""
     if not configs:
@@ -141,7 +177,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=jnp
 
     rows = []
     for c in configs:
-        A, B = hlip.s2s_matrices(c.hlip.z0, c.hlip.t_ssp, c.hlip.t_dsp, c.hlip.g)
+        A, B = _cached_s2s(c.hlip)
         obs = np.zeros((n_obs, 3))
         act = np.zeros(n_obs, bool)
         for i, o in enumerate(c.obstacles):
@@ -166,6 +202,8 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=jnp
                              n_steps=np.int32(n_steps_of(c)), tube=np.bool_(m.mode == "tube"),
                              plant=plant, key=np.asarray(jax.random.key_data(jax.random.PRNGKey(c.seed)))))
     batch = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *rows)
+
+    dtype = dtype or default_dtype()
 
     def cast(x):
         x = np.asarray(x)
@@ -306,7 +344,7 @@ run = jax.jit(_run, static_argnames=("static",))
 
 
 def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to: int | None = None,
-             dtype=jnp.float64) -> Log:
+             dtype=None) -> Log:
     """Run every scenario of ``configs`` in one compiled, vmapped call and return the Log
     (numpy arrays, scenarios in the order given).  ``pad_to`` pads the batch (repeating the
     last scenario) so chunks of a sweep share one compile; padding is dropped from the Log."""
