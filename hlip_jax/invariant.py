@@ -87,11 +87,18 @@ class Zonotope(NamedTuple):
     facet pair: ``normals`` (F, n, unit rows) and ``offsets`` (F,) = Σ_k |normals g_k| give
     {x : |normals (x − c)| ≤ offsets}.  Build it with :func:`zonotope` (or
     :func:`zonotope_hrep`).
+
+    ``prefix_offsets`` (F₀,), optional: the first F₀ normals are the complete facet set of the
+    sub-zonotope Z₀ of the leading generators (for F_s: the first terms A^i W, which carry most
+    of the size), with Z₀'s half-widths.  Membership of many points then runs in two exact
+    passes: F₀ facets decide most points (outside Z if a facet of Z is violated, inside if in
+    Z₀ ⊆ Z); only the band Z ∖ Z₀ gets the full facet test.
     """
     center: Any
     generators: Any
     normals: Any = None
     offsets: Any = None
+    prefix_offsets: Any = None
 
     @property
     def dim(self) -> int:
@@ -104,9 +111,13 @@ class Zonotope(NamedTuple):
     def contains(self, points, tol: float = 1e-9):
         """Bool per point through the exact facets; ``tol`` relative to the set's size."""
         z = _as_jnp(self if self.normals is not None else zonotope_hrep(self))
+        x = jnp.asarray(points)
+        if (z.prefix_offsets is not None and not isinstance(x, jax.core.Tracer)
+                and not isinstance(z.normals, jax.core.Tracer) and x.size >= 8192 * x.shape[-1]):
+            return _zono_contains_two_pass(z, x, tol)
         N, h = _pad_facets(z.normals, z.offsets, 1.0)
-        return _padded_call(lambda x: _zono_contains(z._replace(normals=N, offsets=h), x, tol),
-                            jnp.asarray(points))
+        zp = z._replace(normals=N, offsets=h, prefix_offsets=None)
+        return _padded_call(lambda p: _zono_contains(zp, p, tol), x)
 
     def volume(self):
         """2ⁿ Σ_{|S|=n} |det G_S| over all n-subsets S of the generators (exact)."""
@@ -284,6 +295,47 @@ def _zono_contains(z: Zonotope, x, tol, chunk: int = _CHUNK):
                     x, chunk, Ns.shape[0])
 
 
+@partial(jax.jit, static_argnames=("chunk",))
+def _zono_prefilter(center, N0, h_full0, h0, x, tol, chunk: int = _CHUNK):
+    """0: outside (a facet of Z violated), 1: inside Z₀ ⊆ Z, 2: undecided."""
+    Nf = N0 / h_full0[:, None]
+    Nb = N0 / h0[:, None]
+
+    def one(blk):
+        y = blk - center
+        out = jnp.max(jnp.abs(y @ Nf.T), axis=-1) > 1.0 + tol
+        inn = jnp.max(jnp.abs(y @ Nb.T), axis=-1) <= 1.0
+        return jnp.where(out, 0, jnp.where(inn, 1, 2)).astype(jnp.int8)
+
+    return _blocked(one, x, chunk, N0.shape[0])
+
+
+def _zono_contains_two_pass(z: Zonotope, x, tol):
+    """Exact membership via the prefix facets first, the full facet set on the rest (eager)."""
+    F0 = z.prefix_offsets.shape[0]
+    tiny = jnp.finfo(z.normals.dtype).tiny
+    h0 = jnp.maximum(z.prefix_offsets, tiny)
+    N0 = z.normals[:F0]
+    N0p, h0p = _pad_facets(N0, h0, 1.0)
+    _, hf0p = _pad_facets(N0, jnp.maximum(z.offsets[:F0], tiny), 1.0)
+    state = _padded_int(lambda p: _zono_prefilter(z.center, N0p, hf0p, h0p, p, tol), x)
+    flat = np.asarray(x).reshape(-1, x.shape[-1])
+    inside = state.reshape(-1) == 1
+    und = np.nonzero(state.reshape(-1) == 2)[0]
+    if und.size:
+        N, h = _pad_facets(z.normals, z.offsets, 1.0)
+        zp = z._replace(normals=N, offsets=h, prefix_offsets=None)
+        inside[und] = np.asarray(_padded_call(lambda p: _zono_contains(zp, p, tol),
+                                              jnp.asarray(flat[und])))
+    return jnp.asarray(inside.reshape(x.shape[:-1]))
+
+
+def _padded_int(fn, x):
+    flat = x.reshape(-1, x.shape[-1])
+    k = flat.shape[0]
+    return np.asarray(fn(jnp.pad(flat, ((0, _bucket(k) - k), (0, 0)))))[:k].reshape(x.shape[:-1])
+
+
 def _blocked(fn, x, chunk, n_facets):
     """Apply ``fn`` (points (P, n) → (P,)) over the points in blocks, keeping the (points ×
     facets) temporary near 2²² entries."""
@@ -367,14 +419,24 @@ def zonotope_normals(generators, parallel_rtol: float = 1e-12) -> np.ndarray:
     raise ValueError(f"zonotope H-representation: dimension n={n} not supported (allowed 1..3)")
 
 
-def zonotope_hrep(z: Zonotope) -> Zonotope:
+def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
     """The zonotope with its exact H-representation filled in: one normal N_f per ± facet
-    pair, half-width h_f = Σ_k |N_f g_k| (support of the centred set)."""
+    pair, half-width h_f = Σ_k |N_f g_k| (support of the centred set).
+
+    n_prefix > 0: put the complete facet set of the sub-zonotope of the first ``n_prefix``
+    generators first and record its half-widths in ``prefix_offsets`` (two-pass membership).
+    Extra normals never change the set: every row is a supporting halfspace of Z.
+    """
     c = _f64(z.center)
     G = _f64(z.generators).reshape(-1, c.shape[0])
     N = zonotope_normals(G)
+    h0 = None
+    if 0 < n_prefix < G.shape[0]:
+        N0 = zonotope_normals(G[:n_prefix])
+        N = _unique_directions(np.concatenate([N0, N]))  # keeps N0 first, in order
+        h0 = jnp.asarray(np.sum(np.abs(N[:len(N0)] @ G[:n_prefix].T), axis=1))
     h = np.sum(np.abs(N @ G.T), axis=1)
-    return Zonotope(jnp.asarray(c), jnp.asarray(G), jnp.asarray(N), jnp.asarray(h))
+    return Zonotope(jnp.asarray(c), jnp.asarray(G), jnp.asarray(N), jnp.asarray(h), h0)
 
 
 def zonotope_halfspaces(z: Zonotope):
@@ -385,13 +447,14 @@ def zonotope_halfspaces(z: Zonotope):
     return N2, N2 @ c + np.concatenate([h, h])
 
 
-def zonotope(center, generators) -> Zonotope:
-    """Zonotope c + Gᵀβ, |β| ≤ 1, with facets; center (n,), generators (m, n)."""
+def zonotope(center, generators, n_prefix: int = 0) -> Zonotope:
+    """Zonotope c + Gᵀβ, |β| ≤ 1, with facets; center (n,), generators (m, n);
+    ``n_prefix``: see :func:`zonotope_hrep`."""
     c = _f64(center)
     if c.ndim != 1 or not 1 <= c.shape[0] <= 3:
         raise ValueError(f"zonotope center: shape (n,) with n in 1..3 expected, got {c.shape}")
     G = _f64(generators).reshape(-1, c.shape[0])
-    return zonotope_hrep(Zonotope(c, G))
+    return zonotope_hrep(Zonotope(c, G), n_prefix)
 
 
 def box_to_zonotope(b: Box) -> Zonotope:
@@ -503,9 +566,10 @@ def _check_acl(A_cl, n: int) -> np.ndarray:
     return A
 
 
-def truncated_sum(A_cl, W, s: int, center=None):
+def truncated_sum(A_cl, W, s: int, center=None, n_prefix_terms: int = 0):
     """F_s = ⊕_{i<s} A_cl^i W (exact): a Zonotope for a Box/Zonotope W, a Hull for a Hull W.
-    ``center`` (zonotope only) overrides the centre Σ_{i<s} A_cl^i c_W."""
+    ``center`` (zonotope only) overrides the centre Σ_{i<s} A_cl^i c_W; ``n_prefix_terms``
+    > 0 records the facets of F_{n_prefix_terms} for two-pass membership (see Zonotope)."""
     if s < 1:
         raise ValueError(f"s: must be ≥ 1, got {s}")
     if isinstance(W, Box):
@@ -518,7 +582,8 @@ def truncated_sum(A_cl, W, s: int, center=None):
             cs = cs + Ai @ c
             gs.append(G @ Ai.T)
             Ai = A @ Ai
-        return zonotope(cs if center is None else center, np.concatenate(gs))
+        return zonotope(cs if center is None else center, np.concatenate(gs),
+                        n_prefix=n_prefix_terms * G.shape[0])
     if isinstance(W, Hull):
         V = _f64(W.canonical().vertices)
         A = _f64(A_cl).reshape(V.shape[1], V.shape[1])
@@ -590,6 +655,20 @@ def _choose_s(A: np.ndarray, alpha_fn, M_fn, eps, s_max, nilpotent_tol):
     raise ValueError(f"mrpi: no s ≤ s_max={s_max} meets eps={eps}; raise s_max or eps")
 
 
+def _prefix_terms(A: np.ndarray, G: np.ndarray, s: int, tail: float = 0.1) -> int:
+    """Number of leading terms A^i W whose sum carries all but ``tail`` of the size of F_s
+    (max-coordinate measure); 0 (no two-pass membership) when the sum is short anyway."""
+    if s < 6:
+        return 0
+    sizes, Ai = [], np.eye(A.shape[0])
+    for _ in range(s):
+        sizes.append(np.max(np.sum(np.abs(G @ Ai.T), axis=0)))
+        Ai = A @ Ai
+    rest = np.cumsum(sizes[::-1])[::-1] / np.sum(sizes)  # rest[i] = share of terms ≥ i
+    s0 = int(np.argmax(rest <= tail))
+    return s0 if 0 < s0 <= s // 2 else 0
+
+
 def _mrpi_zonotope(A_cl, W: Zonotope, eps, s_max, nil_tol) -> MRPI:
     c = _f64(W.center)
     G = _f64(W.generators).reshape(-1, c.shape[0])
@@ -619,12 +698,14 @@ def _mrpi_zonotope(A_cl, W: Zonotope, eps, s_max, nil_tol) -> MRPI:
 
     s, a, exact = _choose_s(A, alpha_fn, M_fn, eps, s_max, nil_tol)
     centre = np.linalg.solve(np.eye(n) - A, c)
-    inner = truncated_sum(A, Zonotope(centre, G), s, center=centre)
+    inner = truncated_sum(A, Zonotope(centre, G), s, center=centre,
+                          n_prefix_terms=_prefix_terms(A, G, s) if n == 3 else 0)
     if exact:
         outer = inner
     else:  # scaling about the centre keeps the facet normals
         k = 1.0 / (1.0 - a)
-        outer = Zonotope(inner.center, inner.generators * k, inner.normals, inner.offsets * k)
+        outer = Zonotope(inner.center, inner.generators * k, inner.normals, inner.offsets * k,
+                         None if inner.prefix_offsets is None else inner.prefix_offsets * k)
     return MRPI(inner, outer, int(s), float(a), float(eps), bool(exact))
 
 

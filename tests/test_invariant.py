@@ -244,6 +244,25 @@ def test_coverage_is_one_in_sample(acl):
         assert inv.coverage(Eh, e).outer == 1.0
 
 
+def test_two_pass_membership_matches_full_facet_test():
+    # LQR F_s has tens of terms: membership first uses the facets of the leading terms,
+    # then the full facet set on the undecided band; it must equal the single full pass.
+    E = inv.mrpi(_acl3("lqr"), inv.Box(-jnp.array([0.01, 0.01, 0.05]),
+                                       jnp.array([0.012, 0.01, 0.06])))
+    assert E.outer.prefix_offsets is not None
+    scale = np.asarray(E.outer.support(np.eye(3)))
+    P = np.random.default_rng(2).uniform(-1.1, 1.1, (200_000, 3)) * scale
+    two = np.asarray(E.outer.contains(P))
+    one = np.asarray(E.outer._replace(prefix_offsets=None).contains(P))
+    assert np.array_equal(two, one) and 0.05 < two.mean() < 0.95
+    # the prefix facets describe F_{s0}/(1−α) ⊆ E: its vertices satisfy E's facets
+    F0 = E.outer.prefix_offsets.shape[0]
+    sub = inv.Zonotope(E.outer.center, None, E.outer.normals[:F0], E.outer.prefix_offsets)
+    V = inv._hpoly_vertices(*inv.zonotope_halfspaces(sub._replace(generators=np.zeros((0, 3)))),
+                            np.asarray(E.outer.center))
+    assert np.all(np.asarray(E.outer._replace(prefix_offsets=None).contains(V, tol=1e-9)))
+
+
 def test_contains_jits_and_vmaps():
     E = inv.mrpi(_acl3("lqr"), inv.Box(-jnp.ones(3) * 0.01, jnp.ones(3) * 0.02))
     P = np.random.default_rng(0).normal(size=(4, 50, 3)) * 0.03
