@@ -155,16 +155,14 @@ def fig_steps(log, path: Path, title: str) -> None:
 
 
 def _plane_mats(log, s):
-    A = np.asarray(log["A"][s], np.float64)[1:, 1:]
-    B = np.asarray(log["B"][s], np.float64)[1:]
-    K = np.asarray(log["K_gain"][s], np.float64)
-    K = K[:, 1:] if K.shape[-1] == 3 else K
+    A, B, K, _ = store.error_model(log, s)
     return A, B, K
 
 
 def invariant_analysis(log, members: list[int]):
-    """:func:`hlip_jax.invariant.analyse` on the [p, v] errors of ``members`` (rows of ``log``,
-    same A, B, K): W box, held-out half when there are ≥ 2 runs."""
+    """:func:`hlip_jax.invariant.analyse` on the errors of ``members`` (rows of ``log``, same
+    A, B, K; [c, p, v] or [p, v] as :func:`hlip_jax.store.error_model` decides): W box,
+    held-out half when there are ≥ 2 runs."""
     from hlip_jax import invariant as inv
     A, B, K = _plane_mats(log, members[0])
     sel = np.asarray(members)
@@ -179,9 +177,10 @@ def fig_invariant(an, log, members, path: Path, title: str) -> None:
     plt = _plt()
     sel = np.asarray(members)
     valid = np.cumprod(np.asarray(log["valid"][sel], bool), axis=1).astype(bool)
-    e = np.asarray(log["e"][sel], np.float64)[..., 1:][valid]        # (n, 2, 2) [p, v]
+    sl = store.error_model(log, members[0])[3]
+    e = np.asarray(log["e"][sel], np.float64)[..., sl][valid]        # (n, 2, dim)
     fig = inv.plot_planes((an.planes[0].E, an.planes[1].E), (e[:, 0], e[:, 1]),
-                          title=title + " — error invariant sets E ([p, v]) and errors e_k")
+                          title=title + " — error invariant sets E and errors e_k")
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
 
@@ -206,7 +205,7 @@ def _coverage_rows(an, n_runs: int, row_summary: dict | None) -> list[list[str]]
     return rows
 
 
-COVERAGE_HEAD = ["plane", "W box [p, v] lo – hi", "s", "α", "area of E",
+COVERAGE_HEAD = ["plane", "W box lo – hi", "s", "α", "size of E",
                  "in-sample coverage (inner – outer)", "held-out coverage"]
 
 
@@ -453,7 +452,8 @@ def write_report(out_dir) -> tuple[Path, Path]:
             fig_invariant(an, log, same, fig_dir / f"{slug}_invariant.png", pname)
             doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")
             doc.p(f"W and E from {len(same)} run(s) sharing the gain of scenario #{idx}; "
-                  "E is the mRPI set of e⁺ = (A + BK) e + w on [p, v] (Raković et al. 2005), "
+                  "E is the mRPI set of e⁺ = (A + BK) e + w (Raković et al. 2005) on "
+                  f"{'[c, p, v]' if an.planes[0].E.dim == 3 else '[p, v]'}, "
                   "coverage = fraction of observed errors inside E (bracket inner F_s – outer "
                   "F_s/(1−α)); held-out: W from half of the runs, coverage on the others.")
             doc.table(COVERAGE_HEAD, _coverage_rows(an, len(same), rep))

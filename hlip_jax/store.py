@@ -27,9 +27,9 @@ Metrics (per scenario, over valid pre-impact samples k, i.e. steps before any fa
 * ``rms_pos_err`` [m]: RMS of |c_k − r(t_k)| (time-indexed tracking error, includes lag).
 * ``final_pos_err`` [m]: |c_k − r(t_k)| at the last valid step.
 * ``emax_{x,y}_{c,p,v}``: max |e| per plane and component [m, m, m/s].
-* ``cov_{x,y}_inner`` / ``cov_{x,y}_outer``: in-sample coverage bracket of the errors [p, v] in
-  the mRPI set E of ``e⁺ = (A + BK) e + w`` with W the box of that scenario's own w samples
-  (2-state [p, v]: the c component integrates and has no bounded invariant set).
+* ``cov_{x,y}_inner`` / ``cov_{x,y}_outer``: in-sample coverage bracket of the errors in the
+  mRPI set E of ``e⁺ = (A + BK) e + w`` with W the box of that scenario's own w samples; the
+  state is [c, p, v] when the gain acts on c, else [p, v] (see :func:`error_model`).
 * ``cov_{x,y}_heldout``: W and E from the first half of the steps, coverage (outer set) of the
   errors in the second half.
 * ``qp_failures``: valid steps whose MPC QP status is not 1 (solved).
@@ -281,18 +281,29 @@ def _seg_dist(P: np.ndarray, R: np.ndarray) -> np.ndarray:
     return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
 
 
+def error_model(log: dict, s: int):
+    """(A, B, K, state slice) of the error dynamics e⁺ = (A + BK) e + w of scenario ``s``.
+
+    A gain that acts on the global position c (non-zero c entry) closes the loop on the full
+    [c, p, v] state; a gain on [p, v] only leaves c integrating (eigenvalue 1: no bounded
+    invariant set in c), so the analysis then uses the 2-state [p, v] system."""
+    A = np.asarray(log["A"][s], np.float64)
+    B = np.asarray(log["B"][s], np.float64)
+    K = np.asarray(log["K_gain"][s], np.float64)
+    if K.shape[-1] == 3 and np.any(K[:, 0] != 0.0):
+        return A, B, K, slice(0, 3)
+    return A[1:, 1:], B[1:], K[:, -2:], slice(1, 3)
+
+
 def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
     """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring)."""
     from hlip_jax import invariant as inv
     out = {}
-    A = np.asarray(log["A"][s], np.float64)[1:, 1:]
-    B = np.asarray(log["B"][s], np.float64)[1:]
-    Kg = np.asarray(log["K_gain"][s], np.float64)
-    Kg = Kg[:, 1:] if Kg.shape[-1] == 3 else Kg
-    x = np.asarray(log["x_robot"][s], np.float64)[:, :, 1:]    # (K, 2, 2)
+    A, B, Kg, sl = error_model(log, s)
+    x = np.asarray(log["x_robot"][s], np.float64)[:, :, sl]     # (K, 2, n)
     u = np.asarray(log["u_robot"][s], np.float64)
-    e = np.asarray(log["e"][s], np.float64)[:, :, 1:]
-    # w from the robot's own S2S data (same definition as the log's w, restricted to [p, v])
+    e = np.asarray(log["e"][s], np.float64)[:, :, sl]
+    # w from the robot's own S2S data (same definition as the log's w)
     w = x[1:] - (np.einsum("ij,kpj->kpi", A, x[:-1]) + B[None, None, :] * u[:-1, :, None])
     wmask = mask[1:] & mask[:-1]
     nK = int(mask.sum())

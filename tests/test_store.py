@@ -33,6 +33,8 @@ radius = 0.2
 shape = "circle"
 [[paths]]
 shape = "line"
+[paths.overrides.gain]
+with_position = false
 [grid.product]
 "gain.type" = ["deadbeat", "lqr"]
 "mpc.alpha" = [0.01, 0.1]
@@ -64,7 +66,8 @@ class FakeLog(NamedTuple):
 
 
 def fake_simulate(configs, chunk=None, calls=None):
-    """A Log of the rollout contract: x⁺ = A x + B u + w per plane with the deadbeat law.
+    """A Log of the rollout contract: x⁺ = A x + B u + w per plane with a deadbeat law (on
+    [c, p, v] or on [p, v] as ``gain.with_position`` says).
 
     The H-LIP walks at 0.3 m/s along x (u = v̄T + K x on [p, v]); the robot adds uniform w
     (half-width from the config's noise) seeded by the config's seed.  A scenario named with
@@ -87,7 +90,10 @@ def fake_simulate(configs, chunk=None, calls=None):
         h = c.hlip
         T = h.t_ssp + h.t_dsp
         A, B = (np.asarray(m) for m in hlip.s2s_matrices(h.z0, h.t_ssp, h.t_dsp))
-        Kd = np.concatenate([[0.0], np.asarray(hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp))])
+        if c.gain.with_position:      # deadbeat on [c, p, v]
+            Kd = np.asarray(hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp, with_position=True))
+        else:                         # deadbeat on [p, v], no feedback of c
+            Kd = np.concatenate([[0.0], np.asarray(hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp))])
         A_all[s], B_all[s], K_all[s] = A, B, Kd
         rng = np.random.default_rng(c.seed)
         xh = np.zeros((2, 3))
@@ -159,6 +165,19 @@ def test_run_writes_manifest_chunks_summary(tmp_path):
         assert float(r["cov_x_outer"]) == 1.0 and float(r["cov_y_outer"]) == 1.0
         assert 0.0 <= float(r["cov_x_heldout"]) <= 1.0
         assert float(r["rms_track_err"]) <= float(r["max_track_err"])
+
+
+def test_error_model_state_size():
+    sw = _tiny()
+    log = fake_simulate([sw.scenarios[0], sw.scenarios[4]])._asdict()
+    A, B, K, sl = store.error_model(log, 0)
+    assert A.shape == (3, 3) and K.shape == (2, 3) and sl == slice(0, 3)
+    # deadbeat on [c, p, v]: (A + BK)^3 = 0 (Ackermann).  The gains come from JAX in float32
+    # (x64 off here): entries of A are O(10), so 1e-4 absolute covers the float32 rounding.
+    np.testing.assert_allclose(np.linalg.matrix_power(A + np.outer(B, K[0]), 3), 0, atol=1e-4)
+    A, B, K, sl = store.error_model(log, 1)
+    assert A.shape == (2, 2) and K.shape == (2, 2) and sl == slice(1, 3)
+    np.testing.assert_allclose(np.linalg.matrix_power(A + np.outer(B, K[0]), 2), 0, atol=1e-4)
 
 
 def test_metrics_against_hand_computation():
