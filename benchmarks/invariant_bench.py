@@ -32,13 +32,16 @@ def _parse():
 
 
 def _median_time(fn, repeat):
+    """(median wall, min wall, median process CPU time) [s] after one warm-up call.  CPU time
+    is reported too because the wall time on a shared machine includes waiting for a core."""
     fn()  # compile / warm caches
-    ts = []
+    ts, cs = [], []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
         ts.append(time.perf_counter() - t0)
-    return statistics.median(ts), min(ts)
+        cs.append(time.process_time() - c0)
+    return statistics.median(ts), min(ts), statistics.median(cs)
 
 
 def main():
@@ -68,7 +71,7 @@ def main():
     for name, Acl in cases.items():
         n = Acl.shape[0]
         W = inv.Box(jnp.asarray(-half[n]), jnp.asarray(1.2 * half[n]))
-        build_med, build_min = _median_time(lambda: inv.mrpi(Acl, W, eps=args.eps), args.repeat)
+        build_med, build_min, build_cpu = _median_time(lambda: inv.mrpi(Acl, W, eps=args.eps), args.repeat)
         E = inv.mrpi(Acl, W, eps=args.eps)
         scale = np.asarray(E.outer.support(np.eye(n)))
         P = jnp.asarray(np.random.default_rng(0).uniform(-1.2, 1.2, (args.points, n)) * scale, dtype)
@@ -80,24 +83,30 @@ def main():
         t0 = time.perf_counter()
         inside = member()
         first = time.perf_counter() - t0
-        mem_med, mem_min = _median_time(member, max(3, args.repeat // 4))
+        mem_med, mem_min, mem_cpu = _median_time(member, max(3, args.repeat // 4))
         rows.append(dict(case=name, s=E.s, alpha=E.alpha, facets=int(np.shape(E.outer.normals)[0]),
                          mrpi_ms=1e3 * build_med, mrpi_min_ms=1e3 * build_min,
-                         contains_s=mem_med, contains_min_s=mem_min, first_call_s=first,
+                         mrpi_cpu_ms=1e3 * build_cpu, contains_s=mem_med, contains_min_s=mem_min,
+                         contains_cpu_s=mem_cpu, first_call_s=first,
                          inside=float(np.mean(np.asarray(inside)))))
     dev = jax.devices()[0]
-    meta = dict(device=f"{dev.platform}:{dev.device_kind}", cpus=os.cpu_count(),
+    try:
+        load = os.getloadavg()[0]
+    except OSError:
+        load = float("nan")
+    meta = dict(load_avg_1min=load, device=f"{dev.platform}:{dev.device_kind}", cpus=os.cpu_count(),
                 machine=platform.processor() or platform.machine(), jax=jax.__version__,
                 points=args.points, eps=args.eps, dtype=str(jnp.dtype(dtype)),
                 command="python " + " ".join(sys.argv))
     print(f"device {meta['device']}, {meta['cpus']} CPUs, jax {meta['jax']}, {meta['dtype']}, "
-          f"eps {args.eps:g}, {args.points} points")
-    print("| case | s | α | facet pairs | mrpi median [ms] (min) | contains median [s] (min) | first call [s] |")
+          f"eps {args.eps:g}, {args.points} points, load average {load:.1f}")
+    print("| case | s | α | facet pairs | mrpi wall median (min) / CPU [ms] | "
+          f"contains {args.points:.0e} wall median (min) / CPU [s] | first call [s] |")
     print("|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['case']} | {r['s']} | {r['alpha']:.2e} | {r['facets']} | {r['mrpi_ms']:.2f} "
-              f"({r['mrpi_min_ms']:.2f}) | {r['contains_s']:.3f} ({r['contains_min_s']:.3f}) | "
-              f"{r['first_call_s']:.2f} |")
+              f"({r['mrpi_min_ms']:.2f}) / {r['mrpi_cpu_ms']:.2f} | {r['contains_s']:.3f} "
+              f"({r['contains_min_s']:.3f}) / {r['contains_cpu_s']:.3f} | {r['first_call_s']:.2f} |")
     print(json.dumps(dict(meta=meta, rows=rows)))
 
 

@@ -369,7 +369,7 @@ def _null_basis(G: np.ndarray, n: int, rtol: float = 1e-10) -> np.ndarray:
     """Orthonormal basis (rows) of the complement of span(G rows)."""
     if G.shape[0] == 0:
         return np.eye(n)
-    _, sv, vt = np.linalg.svd(G, full_matrices=True)
+    _, sv, vt = np.linalg.svd(G, full_matrices=G.shape[0] < n)  # vt: (n, n) either way
     rank = int(np.sum(sv > rtol * max(sv.max(), 1e-300)))
     return vt[rank:]
 
@@ -434,9 +434,20 @@ def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
     if 0 < n_prefix < G.shape[0]:
         N0 = zonotope_normals(G[:n_prefix])
         N = _unique_directions(np.concatenate([N0, N]))  # keeps N0 first, in order
-        h0 = jnp.asarray(np.sum(np.abs(N[:len(N0)] @ G[:n_prefix].T), axis=1))
-    h = np.sum(np.abs(N @ G.T), axis=1)
+    P = np.abs(_small_matmul_t(N, G))  # |N_f · g_k|, (F, m)
+    h = P.sum(axis=1)
+    if 0 < n_prefix < G.shape[0]:
+        h0 = jnp.asarray(P[:len(N0), :n_prefix].sum(axis=1))
     return Zonotope(jnp.asarray(c), jnp.asarray(G), jnp.asarray(N), jnp.asarray(h), h0)
+
+
+def _small_matmul_t(N: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """N Gᵀ for a tiny inner dimension (n ≤ 3) as broadcast products: no BLAS threads, which
+    on a busy machine cost more than the arithmetic."""
+    out = N[:, 0:1] * G[:, 0]
+    for j in range(1, N.shape[1]):
+        out += N[:, j:j + 1] * G[:, j]
+    return out
 
 
 def zonotope_halfspaces(z: Zonotope):
@@ -704,8 +715,9 @@ def _mrpi_zonotope(A_cl, W: Zonotope, eps, s_max, nil_tol) -> MRPI:
         outer = inner
     else:  # scaling about the centre keeps the facet normals
         k = 1.0 / (1.0 - a)
-        outer = Zonotope(inner.center, inner.generators * k, inner.normals, inner.offsets * k,
-                         None if inner.prefix_offsets is None else inner.prefix_offsets * k)
+        scaled = lambda v: None if v is None else jnp.asarray(_f64(v) * k)
+        outer = Zonotope(inner.center, scaled(inner.generators), inner.normals,
+                         scaled(inner.offsets), scaled(inner.prefix_offsets))
     return MRPI(inner, outer, int(s), float(a), float(eps), bool(exact))
 
 
