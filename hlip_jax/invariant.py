@@ -619,7 +619,7 @@ def _minkowski_power_sum(A: np.ndarray, V: np.ndarray, s: int) -> np.ndarray:
 
 
 def mrpi(A_cl, W, eps: float = 1e-5, s_max: int = 500, directions=None,
-         nilpotent_tol: float = 1e-10) -> MRPI:
+         nilpotent_tol: float = 1e-10, min_halfwidth=None) -> MRPI:
     """Minimal robust positively invariant set of e⁺ = A_cl e + w, w ∈ W (Raković et al. 2005).
 
     Args:
@@ -631,6 +631,10 @@ def mrpi(A_cl, W, eps: float = 1e-5, s_max: int = 500, directions=None,
       s_max: give up (ValueError) beyond this many terms.
       directions: template directions (F, n) for a Hull W; default :func:`default_directions`.
       nilpotent_tol: α(s) ≤ this is taken as A_cl^s W = {0} (finite, exact sum, α = 0).
+      min_halfwidth: Box W only; scalar or (n,) [state units]: half-widths below it are
+        widened to it (about the box centre).  The procedure needs W₀ with an interior, so a
+        box that is flat in some axis (e.g. a state that the disturbance never reaches) is
+        rejected unless this is given; the result then over-approximates by that margin.
 
     W off the origin is shifted: W = c + W₀, E = (I − A_cl)⁻¹ c + E(W₀); c is the box centre
     (or the vertex mean of a hull), so W₀ has the origin in its interior (required).
@@ -641,9 +645,17 @@ def mrpi(A_cl, W, eps: float = 1e-5, s_max: int = 500, directions=None,
         lo, hi = _f64(W.lo), _f64(W.hi)
         if lo.ndim != 1 or lo.shape != hi.shape:
             raise ValueError(f"W (Box): lo, hi of equal shape (n,) expected, got {lo.shape}, {hi.shape}")
+        if min_halfwidth is not None:
+            mh = np.broadcast_to(_f64(min_halfwidth), lo.shape)
+            if not np.all(mh >= 0):
+                raise ValueError(f"min_halfwidth: must be ≥ 0, got {min_halfwidth}")
+            mid, r = 0.5 * (lo + hi), np.maximum(0.5 * (hi - lo), mh)
+            lo, hi = mid - r, mid + r
+            W = Box(lo, hi)
         if not np.all(hi > lo):
             raise ValueError("W (Box): hi > lo required in every axis (the origin-centred W₀ needs "
-                             f"a non-empty interior), got widths {hi - lo}")
+                             f"a non-empty interior), got widths {hi - lo}; pass min_halfwidth to "
+                             "widen flat axes")
         W = box_to_zonotope(W)
     if isinstance(W, Zonotope):
         return _mrpi_zonotope(A_cl, W, eps, s_max, nilpotent_tol)
@@ -944,7 +956,8 @@ def _joint(E_pair, e, mask, tol):
 
 def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
             quantile: float = 0.99, transient: int = 0, holdout_fraction: float = 0.0,
-            seed: int = 0, eps: float = 1e-5, directions=None, tol: float = 1e-9) -> Analysis:
+            seed: int = 0, eps: float = 1e-5, directions=None, tol: float = 1e-9,
+            min_halfwidth=None) -> Analysis:
     """Per-plane W / E / coverage of a whole log.
 
     Args:
@@ -957,6 +970,7 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
       holdout_fraction: in [0, 1); the leading axis (scenarios) is split with
         ``numpy.random.default_rng(seed)``: W is re-estimated on the training scenarios and
         coverage measured on the held-out ones.  0 skips the held-out part.
+      eps, directions, min_halfwidth: passed to :func:`mrpi`.
     """
     x = _f64(x_robot)
     if x.ndim < 4:
@@ -993,12 +1007,13 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
     planes, Es, Es_tr = [], [], []
     for p in range(2):
         W = estimate_w(w[..., p, :], wmask, W_estimator, quantile)
-        E = mrpi(Acl[p], W, eps=eps, directions=directions)
+        E = mrpi(Acl[p], W, eps=eps, directions=directions, min_halfwidth=min_halfwidth)
         cov = coverage(E, es[..., p, :], emask, tol)
         W_tr = E_tr = held = None
         if n_test:
             W_tr = estimate_w(w[train][..., p, :], wmask[train], W_estimator, quantile)
-            E_tr = mrpi(Acl[p], W_tr, eps=eps, directions=directions)
+            E_tr = mrpi(Acl[p], W_tr, eps=eps, directions=directions,
+                        min_halfwidth=min_halfwidth)
             held = coverage(E_tr, es[test][..., p, :], emask[test], tol)
         Es.append(E)
         Es_tr.append(E_tr)

@@ -352,6 +352,12 @@ def test_bad_inputs_name_the_field():
         inv.mrpi(np.array([[1.1]]), inv.Box(jnp.array([-1.0]), jnp.array([1.0])))
     with pytest.raises(ValueError, match="hi > lo"):
         inv.mrpi(np.array([[0.5]]), inv.Box(jnp.array([1.0]), jnp.array([1.0])))
+    flat = inv.Box(jnp.array([-1.0, 0.0]), jnp.array([1.0, 0.0]))  # no disturbance on axis 1
+    with pytest.raises(ValueError, match="min_halfwidth"):
+        inv.mrpi(np.diag([0.5, 0.5]), flat)
+    E = inv.mrpi(np.diag([0.5, 0.5]), flat, min_halfwidth=1e-6)
+    # widened axis: half-width 1e-6/(1−0.5); ε = 1e-5 bound on the outer set
+    assert float(E.support(np.array([0.0, 1.0]))) == pytest.approx(2e-6, abs=1e-5)
     with pytest.raises(ValueError, match="quantile"):
         inv.estimate_w(np.zeros((5, 2)), method="quantile", quantile=0.2)
     with pytest.raises(ValueError, match="method"):
