@@ -455,7 +455,10 @@ def write_report(out_dir) -> tuple[Path, Path]:
                   "E is the mRPI set of e⁺ = (A + BK) e + w (Raković et al. 2005) on "
                   f"{'[c, p, v]' if an.planes[0].E.dim == 3 else '[p, v]'}, "
                   "coverage = fraction of observed errors inside E (bracket inner F_s – outer "
-                  "F_s/(1−α)); held-out: W from half of the runs, coverage on the others.")
+                  "F_s/(1−α)); held-out: " + ("W from half of the runs, coverage on the others."
+                                               if len(same) >= 2 else
+                                               "W from the first half of the steps, coverage "
+                                               "of the errors in the second half."))
             doc.table(COVERAGE_HEAD, _coverage_rows(an, len(same), rep))
             for p, plane in enumerate(("x", "y")):
                 pa = an.planes[p]

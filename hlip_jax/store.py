@@ -597,7 +597,14 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
         if max_chunks is not None and ran >= max_chunks:
             break
         chunk_cfgs = configs[a:b] + [configs[b - 1]] * (batch - (b - a))
-        log = sim(chunk_cfgs)
+        try:
+            log = sim(chunk_cfgs)
+        except (ImportError, NotImplementedError) as err:
+            plants = sorted({c.plant for c in chunk_cfgs})
+            man["status"] = "incomplete"
+            _write_manifest(out, man)
+            raise StoreError(f"the closed loop for plant {', '.join(plants)} is not available: "
+                             f"{type(err).__name__}: {err}") from None
         arrays = _log_to_arrays(log, b - a)
         arrays["index"] = np.arange(a, b, dtype=np.int64)
         mets = [scenario_metrics(arrays, s, with_coverage) for s in range(b - a)]

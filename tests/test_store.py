@@ -276,3 +276,33 @@ def test_missing_results_dir(tmp_path):
         store.read_manifest(tmp_path / "nope")
     with pytest.raises(store.StoreError, match="not a results directory"):
         store.read_manifest(tmp_path)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_kill_and_resume_real_closed_loop(tmp_path):
+    """Same equality with the real H-LIP closed loop (one compile, reused in-process):
+    resumed chunks must be bit-identical, i.e. the rollout is deterministic per chunk."""
+    from hlip_jax import rollout
+    sw = sweep.parse_sweep("""
+[base]
+duration = 2.0
+[base.disturbance]
+noise_v = 0.02
+[[paths]]
+shape = "circle"
+[grid.product]
+"gain.type" = ["deadbeat", "lqr"]
+""")
+    store.run_sweep(sw, tmp_path / "ref", batch=1, progress=False, simulate=rollout.simulate)
+    r1 = store.run_sweep(sw, tmp_path / "part", batch=1, progress=False,
+                         simulate=rollout.simulate, max_chunks=1)
+    assert not r1.complete
+    r2 = store.run_sweep(sw, tmp_path / "part", resume=True, progress=False,
+                         simulate=rollout.simulate)
+    assert r2.complete and r2.chunks_skipped == 1 and r2.chunks_run == 1
+    a, b = _arrays(tmp_path / "ref"), _arrays(tmp_path / "part")
+    for f in a:
+        for k in a[f]:
+            assert a[f][k].tobytes() == b[f][k].tobytes(), (f, k)
+    assert a["chunk_00000.npz"]["valid"].any()
