@@ -75,6 +75,7 @@ _MIN_SCALING = 1e-4  # Ruiz norms below this are left unscaled
 _MAX_SCALING = 1e4  # Ruiz norms are clipped to this
 _DIV_TOL = 1e-30  # guard in the adaptive-ρ ratios
 _INACCURATE_FACTOR = 10.0  # tolerance multiplier for the "inaccurate" statuses at max_iter
+_UNROLL = 1  # ADMM iterations unrolled per inner-loop trip (fewer loop overheads)
 
 
 class Settings(NamedTuple):
@@ -203,7 +204,9 @@ def _ruiz(P, q, A, passes: int):
     D = jnp.ones((n,), P.dtype)
     E = jnp.ones((m,), P.dtype)
     c = jnp.ones((), P.dtype)
-    for _ in range(passes):
+
+    def one_pass(_, carry):
+        P, q, A, D, E, c = carry
         # Ruiz step: ∞-norms of the KKT columns [P; A] (first n) and of the rows of A (last m).
         dn = jnp.maximum(jnp.max(jnp.abs(P), axis=0), jnp.max(jnp.abs(A), axis=0))
         en = jnp.max(jnp.abs(A), axis=1)
@@ -218,9 +221,9 @@ def _ruiz(P, q, A, passes: int):
         mean_p = jnp.mean(jnp.max(jnp.abs(P), axis=0))
         ct = jnp.maximum(mean_p, _limit_scaling(_ninf(q)))
         ct = 1.0 / _limit_scaling(ct)
-        P = ct * P
-        q = ct * q
-        c = c * ct
+        return ct * P, ct * q, A, D, E, c * ct
+
+    P, q, A, D, E, c = lax.fori_loop(0, passes, one_pass, (P, q, A, D, E, c))
     return P, q, A, D, E, c
 
 
@@ -293,39 +296,53 @@ def _residuals(d: _Scaled, x, z, y):
     return prim, prim_norm, dual, dual_norm, (Ax, Px, Aty)
 
 
-def _primal_infeasible(d: _Scaled, dy, eps):
-    """OSQP's primal infeasibility certificate on δy (projected onto the polar recession cone):
-    ‖E δy‖ > ε, ‖D⁻¹Āᵀδy‖ ≤ ε‖E δy‖, ūᵀ(δy)₊ + l̄ᵀ(δy)₋ < −... < ε‖E δy‖ (scaled ⇔ unscaled)."""
+def _primal_infeasibility(d: _Scaled, dy):
+    """Quantities of OSQP's primal infeasibility certificate on δy (projected onto the polar
+    recession cone of [l, u]); the test at tolerance ε is
+    ‖E δy‖ > ε,  uᵀ(δy)₊ + lᵀ(δy)₋ < −ε‖E δy‖,  ‖Aᵀδy‖ < ε‖E δy‖  (unscaled, δy ↦ E δy)."""
     dy = jnp.where(d.u_inf, jnp.minimum(dy, 0.0), dy)
     dy = jnp.where(d.l_inf, jnp.maximum(dy, 0.0), dy)
     norm_dy = _ninf(d.E * dy)
     ub = jnp.sum(jnp.where(d.u_inf, 0.0, d.u * jnp.maximum(dy, 0.0)))
     lb = jnp.sum(jnp.where(d.l_inf, 0.0, d.l * jnp.minimum(dy, 0.0)))
-    Aty = _ninf(_mtv(d.A, dy) / d.D)
-    return (norm_dy > eps) & (ub + lb < -eps * norm_dy) & (Aty < eps * norm_dy)
+    aty = _ninf(_mtv(d.A, dy) / d.D)
+    return norm_dy, ub + lb, aty
 
 
-def _dual_infeasible(d: _Scaled, dx, eps):
-    """OSQP's dual infeasibility certificate on δx: ‖Dδx‖ > ε, qᵀδx < −ε‖Dδx‖, ‖Pδx‖ ≤ ε‖Dδx‖,
-    (Aδx)_i ≤ ε‖Dδx‖ where u_i finite and ≥ −ε‖Dδx‖ where l_i finite (all unscaled)."""
+def _primal_infeasible(q, eps):
+    norm_dy, bound, aty = q
+    return (norm_dy > eps) & (bound < -eps * norm_dy) & (aty < eps * norm_dy)
+
+
+def _dual_infeasibility(d: _Scaled, dx):
+    """Quantities of OSQP's dual infeasibility certificate on δx; the test at tolerance ε is
+    ‖Dδx‖ > ε, qᵀδx < −ε‖Dδx‖, ‖Pδx‖ < ε‖Dδx‖, (Aδx)_i ≤ ε‖Dδx‖ where u_i is finite and
+    (Aδx)_i ≥ −ε‖Dδx‖ where l_i is finite (unscaled, δx ↦ D δx)."""
     norm_dx = _ninf(d.D * dx)
     qdx = jnp.dot(d.q, dx, precision=_HI) / d.c
-    Pdx = _ninf(_mv(d.P, dx) / d.D) / d.c
-    Adx = _mv(d.A, dx) / d.E
+    pdx = _ninf(_mv(d.P, dx) / d.D) / d.c
+    adx = _mv(d.A, dx) / d.E
+    # largest violation of the recession-cone conditions on A δx
+    a_viol = jnp.maximum(jnp.max(jnp.where(d.u_inf, -jnp.inf, adx), initial=-jnp.inf),
+                         jnp.max(jnp.where(d.l_inf, -jnp.inf, -adx), initial=-jnp.inf))
+    return norm_dx, qdx, pdx, a_viol
+
+
+def _dual_infeasible(q, eps):
+    norm_dx, qdx, pdx, a_viol = q
     tol = eps * norm_dx
-    a_ok = jnp.all(jnp.where(d.u_inf, True, Adx <= tol) & jnp.where(d.l_inf, True, Adx >= -tol))
-    return (norm_dx > eps) & (qdx < -tol) & (Pdx < tol) & a_ok
+    return (norm_dx > eps) & (qdx < -tol) & (pdx < tol) & (a_viol <= tol)
 
 
-def _check(d: _Scaled, s: Settings, x, z, y, dx, dy, factor: float):
-    """Termination test at (possibly loosened) tolerances; returns status (0 = keep going)."""
-    prim, prim_norm, dual, dual_norm, vecs = _residuals(d, x, z, y)
-    eps_p = factor * s.eps_abs + factor * s.eps_rel * prim_norm
-    eps_d = factor * s.eps_abs + factor * s.eps_rel * dual_norm
-    solved = (prim <= eps_p) & (dual <= eps_d)
-    pinf = _primal_infeasible(d, dy, factor * s.eps_prim_inf)
-    dinf = _dual_infeasible(d, dx, factor * s.eps_dual_inf)
-    return solved, pinf, dinf, prim, dual, vecs
+def _status(s: Settings, res, pinf_q, dinf_q, factor):
+    """OSQP's termination order: solved, else primal infeasible, else dual infeasible (0 = none);
+    ``factor`` loosens every tolerance (the "inaccurate" test at max_iter)."""
+    prim, prim_norm, dual, dual_norm = res
+    solved = ((prim <= factor * (s.eps_abs + s.eps_rel * prim_norm))
+              & (dual <= factor * (s.eps_abs + s.eps_rel * dual_norm)))
+    pinf = _primal_infeasible(pinf_q, factor * s.eps_prim_inf)
+    dinf = _dual_infeasible(dinf_q, factor * s.eps_dual_inf)
+    return solved, pinf, dinf
 
 
 def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
@@ -393,17 +410,21 @@ def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
             return (jnp.where(go, xn, x), jnp.where(go, zn, z), jnp.where(go, yn, y),
                     jnp.where(go, xn - x, dx), jnp.where(go, yn - y, dy), it + go.astype(it.dtype))
 
-        x, z, y, dx, dy, it = lax.fori_loop(0, K, it_body, (st.x, st.z, st.y, st.dx, st.dy, st.it))
+        x, z, y, dx, dy, it = lax.fori_loop(0, K, it_body, (st.x, st.z, st.y, st.dx, st.dy, st.it),
+                                            unroll=_UNROLL)
 
         # Termination (unscaled OSQP criteria), then infeasibility certificates.
-        solved, pinf, dinf, prim, dual, (Ax, Px, Aty) = _check(d, s, x, z, y, dx, dy, 1.0)
+        prim, prim_norm, dual, dual_norm, (Ax, Px, Aty) = _residuals(d, x, z, y)
+        res = (prim, prim_norm, dual, dual_norm)
+        pq, dq = _primal_infeasibility(d, dy), _dual_infeasibility(d, dx)
+        solved, pinf, dinf = _status(s, res, pq, dq, 1.0)
         status = jnp.where(solved, SOLVED, jnp.where(pinf, PRIMAL_INFEASIBLE,
                            jnp.where(dinf, DUAL_INFEASIBLE, 0)))
-        at_max = it >= s.max_iter
-        a_solved, a_pinf, a_dinf, _, _, _ = _check(d, s, x, z, y, dx, dy, _INACCURATE_FACTOR)
+        # At max_iter: OSQP's "inaccurate" statuses at tolerances loosened ×10.
+        a_solved, a_pinf, a_dinf = _status(s, res, pq, dq, _INACCURATE_FACTOR)
         status_max = jnp.where(a_solved, SOLVED_INACCURATE, jnp.where(
             a_pinf, PRIMAL_INFEASIBLE_INACCURATE, jnp.where(a_dinf, DUAL_INFEASIBLE_INACCURATE, MAX_ITER)))
-        status = jnp.where((status == 0) & at_max, status_max, status)
+        status = jnp.where((status == 0) & (it >= s.max_iter), status_max, status)
         finite = jnp.isfinite(prim) & jnp.isfinite(dual)
         status = jnp.where(finite, status, UNSOLVED).astype(jnp.int32)
         done = status != 0
@@ -439,19 +460,36 @@ def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
     return Solution(x, y, z, st.status, st.it, st.prim_res, st.dual_res)
 
 
-def _solve_flat(P, q, A, l, u, x0, y0, settings: Settings, warm: bool, batched: bool):
+def _solve_flat(P, q, A, l, u, x0, y0, settings: Settings, warm: bool, batched: bool, chunk: int):
     with jax.default_matmul_precision("highest"):
         f = lambda *a: _solve_one(*a, settings, warm)
-        if batched:
-            f = jax.vmap(f)
-        return f(P, q, A, l, u, x0, y0)
+        if not batched:
+            return f(P, q, A, l, u, x0, y0)
+        B = q.shape[0]
+        if chunk >= B:
+            return jax.vmap(f)(P, q, A, l, u, x0, y0)
+        # Chunks of the batch run one after another (lax.map), each as a vmapped while loop that
+        # stops when its own slowest problem is done and whose data stays in cache.
+        args = (P, q, A, l, u, x0, y0)
+        pad = -B % chunk
+        if pad:  # pad with copies of the first problem (dropped again below)
+            args = tuple(jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad,) + a.shape[1:])]) for a in args)
+        args = tuple(a.reshape((-1, chunk) + a.shape[1:]) for a in args)
+        out = lax.map(lambda a: jax.vmap(f)(*a), args)
+        return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:])[:B], out)
 
 
-_solve_jit = jax.jit(_solve_flat, static_argnames=("settings", "warm", "batched"))
+_solve_jit = jax.jit(_solve_flat, static_argnames=("settings", "warm", "batched", "chunk"))
+
+
+def default_chunk() -> int:
+    """Batch chunk size: 32 on CPU (cache-sized, stops per chunk), whole batch on accelerators."""
+    return 32 if jax.default_backend() == "cpu" else 1 << 62
 
 
 def solve(P, q, A, l, u, *, settings: Settings = Settings(),
-          warm_start: Optional[Tuple[jax.Array, jax.Array]] = None) -> Solution:
+          warm_start: Optional[Tuple[jax.Array, jax.Array]] = None,
+          batch_chunk: Optional[int] = None) -> Solution:
     """Solve ``min ½xᵀPx + qᵀx  s.t.  l ≤ Ax ≤ u`` for one problem or a batch.
 
     Args:
@@ -462,6 +500,8 @@ def solve(P, q, A, l, u, *, settings: Settings = Settings(),
       settings: static ``Settings``.
       warm_start: optional ``(x, y)`` with shapes (…, n), (…, m) (e.g. the previous solution of a
         receding-horizon problem); z starts at A x.
+      batch_chunk: problems per vmapped chunk (chunks run sequentially, each until its own
+        problems are done); default ``default_chunk()``.  Results do not depend on it.
     Leading batch axes of all arguments broadcast against each other; the batch is vmapped
     internally.  dtype is the inputs' common float type.  Works under ``jit`` and ``vmap``.
 
@@ -469,6 +509,9 @@ def solve(P, q, A, l, u, *, settings: Settings = Settings(),
       ``Solution`` with the batch shape in front of every field.
     """
     validate_settings(settings)
+    chunk = default_chunk() if batch_chunk is None else batch_chunk
+    if not (isinstance(chunk, int) and chunk >= 1):
+        raise ValueError(f"batch_chunk = {batch_chunk!r} is outside the allowed range: integers >= 1")
     P, q, A, l, u = (jnp.asarray(a) for a in (P, q, A, l, u))
     dtype = jnp.result_type(P, q, A, l, u, float)
     if warm_start is not None:
@@ -507,7 +550,8 @@ def solve(P, q, A, l, u, *, settings: Settings = Settings(),
     shapes = ((n, n), (n,), (m_eff, n), (m_eff,), (m_eff,), (n,), (m_eff,))
     args = [jnp.broadcast_to(a.astype(dtype), batch + sh).reshape((-1,) + sh) if batch else
             a.astype(dtype) for a, sh in zip((P, q, A, l, u, x0, y0), shapes)]
-    sol = _solve_jit(*args, settings=settings, warm=warm_start is not None, batched=bool(batch))
+    sol = _solve_jit(*args, settings=settings, warm=warm_start is not None,
+                     batched=bool(batch), chunk=chunk)
     if batch:
         sol = jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), sol)
     if m == 0:

@@ -174,8 +174,8 @@ def test_infeasibility_statuses_match_osqp(make, status):
 
 
 def test_warm_start_converges_within_one_check_interval():
-    rng = np.random.default_rng(11)
-    probs = [random_qp(rng, 16, 32) for _ in range(4)]
+    rng = np.random.default_rng(1000 * 16 + 32)  # the (16, 32) accuracy problems (compile reused)
+    probs = [random_qp(rng, 16, 32) for _ in range(3)]
     args = stack(probs)
     sol = qp.solve(*args, settings=TIGHT64)
     assert np.all(np.asarray(sol.status) == qp.SOLVED)
@@ -218,7 +218,7 @@ def test_leading_batch_axes_broadcast_and_match_single_solves():
 
 def test_jit_and_external_vmap():
     rng = np.random.default_rng(8)
-    probs = stack([random_qp(rng, 5, 10) for _ in range(3)])
+    probs = stack([random_qp(rng, 5, 12) for _ in range(3)])
     f = jax.jit(jax.vmap(lambda *a: qp.solve(*a, settings=TIGHT64)))
     a = f(*probs)
     b = qp.solve(*probs, settings=TIGHT64)
@@ -229,7 +229,7 @@ def test_jit_and_external_vmap():
 @pytest.mark.parametrize("max_iter,check", [(37, 10), (40, 20), (1, 5)])
 def test_max_iter_and_check_interval_are_honoured_exactly(max_iter, check):
     rng = np.random.default_rng(9)
-    probs = stack([random_qp(rng, 12, 24, "ill") for _ in range(2)])
+    probs = stack([random_qp(rng, 5, 12, "ill") for _ in range(2)])
     s = qp.Settings(eps_abs=1e-12, eps_rel=1e-12, max_iter=max_iter, check_interval=check,
                     adaptive_rho_interval=check)
     sol = qp.solve(*probs, settings=s)
@@ -239,7 +239,7 @@ def test_max_iter_and_check_interval_are_honoured_exactly(max_iter, check):
 
 def test_iterations_are_multiples_of_check_interval():
     rng = np.random.default_rng(10)
-    probs = stack([random_qp(rng, 8, 16) for _ in range(4)])
+    probs = stack([random_qp(rng, 5, 12) for _ in range(3)])
     s = qp.Settings(eps_abs=1e-6, eps_rel=1e-6, check_interval=7, adaptive_rho_interval=21)
     sol = qp.solve(*probs, settings=s)
     assert np.all(np.asarray(sol.status) == qp.SOLVED)
@@ -256,8 +256,8 @@ def test_unconstrained_closed_form():
 
 
 def test_inverse_linsys_matches_cholesky():
-    rng = np.random.default_rng(13)
-    probs = stack([random_qp(rng, 10, 20) for _ in range(3)])
+    rng = np.random.default_rng(1000 * 16 + 32)
+    probs = stack([random_qp(rng, 16, 32) for _ in range(3)])
     a = qp.solve(*probs, settings=TIGHT64)
     b = qp.solve(*probs, settings=TIGHT64._replace(linsys="inverse"))
     np.testing.assert_array_equal(b.status, qp.SOLVED)
@@ -278,3 +278,15 @@ def test_bad_shapes_name_the_argument():
         qp.solve(np.eye(2), np.zeros(3), np.eye(2), -np.ones(2), np.ones(2))
     with pytest.raises(ValueError, match="l must"):
         qp.solve(np.eye(2), np.zeros(2), np.eye(2), -np.ones(3), np.ones(2))
+
+
+def test_batch_chunks_do_not_change_results():
+    # Chunked (lax.map over vmapped chunks, last chunk padded) vs one vmapped batch: each problem
+    # runs the same iterations, so results agree to rounding of the differently compiled programs.
+    rng = np.random.default_rng(1000 * 5 + 12)
+    probs = stack([random_qp(rng, 5, 12) for _ in range(3)])
+    a = qp.solve(*probs, settings=TIGHT64)
+    b = qp.solve(*probs, settings=TIGHT64, batch_chunk=2)
+    np.testing.assert_array_equal(a.iterations, b.iterations)
+    np.testing.assert_array_equal(a.status, b.status)
+    np.testing.assert_allclose(a.x, b.x, atol=1e-10)
