@@ -278,8 +278,10 @@ def heatmaps(man: dict, rows: list[dict], fig_dir: Path) -> list[tuple[str, str]
         for i in range(len(va)):
             for j in range(len(vb)):
                 if not np.isnan(data[i, j]):
+                    lvl = float(im.norm(data[i, j]))
+                    dark = lvl < 0.55 if name == "error" else (lvl < 0.2 or lvl > 0.8)
                     ax.text(j, i, _fmt(float(data[i, j]), 2), ha="center", va="center",
-                            fontsize=6, color="k")
+                            fontsize=6, color="w" if dark else "k")
         fig.colorbar(im, ax=ax, label=clabel)
         ax.set_title(f"{clabel} over {la} × {lb}", fontsize=9)
         fig.tight_layout()  # tick labels of unknown length: worth the cost for 2 figures

@@ -306,3 +306,14 @@ shape = "circle"
         for k in a[f]:
             assert a[f][k].tobytes() == b[f][k].tobytes(), (f, k)
     assert a["chunk_00000.npz"]["valid"].any()
+
+
+def test_no_coverage_option(tmp_path):
+    out = tmp_path / "r"
+    store.run_sweep(_tiny(), out, batch=4, progress=False, simulate=fake_simulate,
+                    with_coverage=False)
+    rows = store.read_summary(out)
+    assert all(math.isnan(r["cov_x_outer"]) for r in rows)
+    assert all(math.isfinite(r["rms_track_err"]) for r in rows)
+    with pytest.raises(store.StoreError, match="coverage setting differs"):
+        store.run_sweep(_tiny(), out, resume=True, progress=False, simulate=fake_simulate)
