@@ -638,6 +638,10 @@ def mrpi(A_cl, W, eps: float = 1e-5, s_max: int = 500, directions=None,
 
     W off the origin is shifted: W = c + W₀, E = (I − A_cl)⁻¹ c + E(W₀); c is the box centre
     (or the vertex mean of a hull), so W₀ has the origin in its interior (required).
+
+    Cost: a box W takes ~1 ms for a deadbeat A_cl and a few ms for tens of terms (3-D facet
+    pairs grow as (3s)²/2).  A hull W builds its inner set F_s by s successive Minkowski sums
+    pruned with Qhull: instant in 2-D or for deadbeat gains, seconds in 3-D with tens of terms.
     """
     if not eps > 0:
         raise ValueError(f"eps: must be > 0, got {eps}")
