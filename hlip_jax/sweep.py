@@ -253,7 +253,10 @@ def _build(cls, raw, where: str, exclude=()):
     return cls(**kwargs)
 
 
-def _check_path_params(shape: str, params: dict, where: str) -> dict:
+def _check_path_params(shape: str, params: dict, where: str, loc_of=None) -> dict:
+    """Validate path parameters against the shape's spec; ``loc_of(k)`` names key k in
+    messages (default ``where.k``)."""
+    loc_of = loc_of or (lambda k: f"{where}.{k}")
     spec = path_param_spec(shape)
     out = {}
     for k, v in params.items():
@@ -266,10 +269,10 @@ def _check_path_params(shape: str, params: dict, where: str) -> dict:
             try:
                 paths.validate_params(shape, {k: v})
             except (ValueError, TypeError) as err:
-                raise SweepError(f"{where}.{k}: {err}") from None
+                raise SweepError(f"{loc_of(k)}: {err}") from None
             out[k] = [[float(a) for a in pt] for pt in v]
             continue
-        out[k] = check_scalar(v, kind, meta, f"{where}.{k}")
+        out[k] = check_scalar(v, kind, meta, loc_of(k))
     return out
 
 
@@ -596,9 +599,11 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
             raise SweepError(f"{loc}.name: expected a non-empty string without '/', got {_fmt(pname)}")
         if any(q[0] == pname for q in paths):
             raise SweepError(f"{loc}.name: {pname!r} is used by two paths; names must be unique")
-        params = {k: v for k, v in p.items() if k not in PATH_RESERVED}
-        params = {**{k: v for k, v in base_path.items()}, **params}
-        params = _check_path_params(shape, params, loc if set(params) - set(base_path) else "base.path")
+        own = {k: v for k, v in p.items() if k not in PATH_RESERVED}
+        inherited = {k: v for k, v in base_path.items() if k not in own}
+        params = {**_check_path_params(shape, inherited, "base.path",
+                                       lambda k: f"base.path.{k} (path {loc}, shape {shape!r})"),
+                  **_check_path_params(shape, own, loc)}
         over = p.get("overrides", {})
         if not isinstance(over, dict):
             raise SweepError(f"{loc}.overrides: expected a table, got {_tname(over)}")
@@ -643,7 +648,9 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
                     keys = keymap[f]
                     where = f"grid.{f!r} = {_fmt(v)} (path {pname!r})"
                     if keys[0] == "path":
-                        pparams.update(_check_path_params(shape, {keys[1]: v}, where.rsplit(" =", 1)[0]))
+                        pparams.update(_check_path_params(
+                            shape, {keys[1]: v}, "grid",
+                            lambda k: f"grid.{f!r} (path {pname!r}, shape {shape!r})"))
                     else:
                         _set_dotted(raw, keys, v, where)
                     swept[f] = v
