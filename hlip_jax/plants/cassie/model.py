@@ -229,7 +229,7 @@ def load(path: Optional[str | pathlib.Path] = None, impl: str = "jax") -> Cassie
 
 
 def make_batch(cassie: Cassie, batch_size: int, key: jax.Array, qpos_noise: float = 0.0,
-               qvel_noise: float = 0.0, forward: bool = True) -> mjx.Data:
+               qvel_noise: float = 0.0, forward: bool = False) -> mjx.Data:
     """Batched ``mjx.Data`` (leading axis ``batch_size``) at the "stand" keyframe.
 
     Args:
@@ -240,8 +240,9 @@ def make_batch(cassie: Cassie, batch_size: int, key: jax.Array, qpos_noise: floa
         this much times the link lengths; the constraint solver pulls them shut in the first
         few milliseconds of simulation.
       qvel_noise: half-width [m/s or rad/s] of uniform offsets added to every dof velocity.
-      forward: run ``mjx.forward`` (vmapped) so derived fields (positions, contacts, qacc) are
-        filled; ``False`` skips it (``mjx.step`` recomputes them anyway).
+      forward: run ``mjx.forward`` (vmapped, one extra compile) so the derived fields
+        (positions, contacts, qacc) belong to the offset state; by default they are those of
+        the unperturbed keyframe (``mjx.step`` and :func:`smooth` recompute them anyway).
     """
     if int(batch_size) < 1:
         raise ValueError(f"batch_size must be ≥ 1, got {batch_size}")
