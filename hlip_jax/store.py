@@ -177,7 +177,9 @@ def read_manifest(out_dir) -> dict:
 
 
 def _write_manifest(out_dir, man: dict) -> None:
-    write_atomic(Path(out_dir) / MANIFEST, json.dumps(man, indent=1, sort_keys=False) + "\n")
+    # indented for reading; compact for large sweeps (the configs dominate its size)
+    indent = 1 if len(man.get("configs", ())) <= 1000 else None
+    write_atomic(Path(out_dir) / MANIFEST, json.dumps(man, indent=indent) + "\n")
 
 
 # --------------------------------------------------------------------------------------------
@@ -595,6 +597,28 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
     done = sum(b - a for i, (a, b) in enumerate(ranges) if _chunk_ok(chunk_path(out, i), a, b))
     bar.update(done, "resuming" if done else "compiling")
     ran = skipped = 0
+    try:
+        ran, skipped, done = _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks,
+                                         with_coverage, man)
+    except BaseException:
+        # interrupted or failed: finished chunks stay; the manifest says the run is incomplete
+        man["status"] = "incomplete"
+        man["end_time"] = _now()
+        man["seconds"] = man.get("seconds", 0.0) + (time.monotonic() - t0)
+        _write_manifest(out, man)
+        raise
+    complete = all(_chunk_ok(chunk_path(out, i), a, b) for i, (a, b) in enumerate(ranges))
+    man["status"] = "complete" if complete else "incomplete"
+    man["end_time"] = _now()
+    man["seconds"] = man.get("seconds", 0.0) + (time.monotonic() - t0)
+    _write_manifest(out, man)
+    if complete:
+        write_summary(out)
+    return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0)
+
+
+def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, man):
+    ran = skipped = 0
     for i, (a, b) in enumerate(ranges):
         p = chunk_path(out, i)
         if _chunk_ok(p, a, b):
@@ -607,8 +631,6 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
             log = sim(chunk_cfgs)
         except (ImportError, NotImplementedError) as err:
             plants = sorted({c.plant for c in chunk_cfgs})
-            man["status"] = "incomplete"
-            _write_manifest(out, man)
             raise StoreError(f"the closed loop for plant {', '.join(plants)} is not available: "
                              f"{type(err).__name__}: {err}") from None
         arrays = _log_to_arrays(log, b - a)
@@ -620,11 +642,4 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
         ran += 1
         done += b - a
         bar.update(done)
-    complete = all(_chunk_ok(chunk_path(out, i), a, b) for i, (a, b) in enumerate(ranges))
-    man["status"] = "complete" if complete else "incomplete"
-    man["end_time"] = _now()
-    man["seconds"] = man.get("seconds", 0.0) + (time.monotonic() - t0)
-    _write_manifest(out, man)
-    if complete:
-        write_summary(out)
-    return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0)
+    return ran, skipped, done

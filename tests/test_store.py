@@ -218,6 +218,7 @@ def test_kill_and_resume_is_identical(tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         store.run_sweep(sw, part, resume=True, progress=False, simulate=boom)
+    assert json.loads((part / "manifest.json").read_text())["status"] == "incomplete"
     calls = []
     r2 = store.run_sweep(sw, part, resume=True, progress=False,
                          simulate=lambda c: fake_simulate(c, calls=calls))
