@@ -118,7 +118,8 @@ def main():
         P, q, A, l, u = mpc_like(rng, bmax, n, m)
         q_prev = q * (1.0 + 0.05 * rng.standard_normal(q.shape))
         # warm start: the accurately solved previous (perturbed) problem
-        prev = qp.solve(P, q_prev, A, l, u, settings=qp.Settings(eps_abs=1e-6, eps_rel=1e-6))
+        tight = 1e-6 if DTYPE == "float64" else 1e-5
+        prev = qp.solve(P, q_prev, A, l, u, settings=qp.Settings(eps_abs=tight, eps_rel=tight))
         warm_np = (np.asarray(prev.x), np.asarray(prev.y))
         for mode in modes:
             warm = warm_np if mode == "warm" else None
