@@ -35,6 +35,8 @@ def _parse(argv=None):
                    help="disable implicit joint damping in the Euler step (saves one factorization)")
     p.add_argument("--c-steps", type=int, default=4000, help="C MuJoCo reference steps (0: skip)")
     p.add_argument("--float64", action="store_true", help="run MJX in float64")
+    p.add_argument("--matmul-precision", choices=("default", "high", "highest"), default="highest",
+                   help="jax default matmul precision (default highest: no TF32 in the solver)")
     p.add_argument("--force", action="store_true", help="allow CPU batches above 48")
     p.add_argument("--cache-dir", default=None, help="persistent XLA compilation cache directory")
     a = p.parse_args(argv)
@@ -86,6 +88,7 @@ def main(argv=None):
 
     if a.float64:
         jax.config.update("jax_enable_x64", True)
+    jax.config.update("jax_default_matmul_precision", a.matmul_precision)
     if a.cache_dir:
         jax.config.update("jax_compilation_cache_dir", a.cache_dir)
     import jax.numpy as jnp
@@ -142,7 +145,7 @@ def main(argv=None):
     c_sps = c_mujoco_steps_per_s(m, cassie.index.stand_key, a.c_steps) if a.c_steps else None
 
     print(f"\nCassie physics only — {dev.platform} ({dev.device_kind}), dtype "
-          f"{'float64' if a.float64 else 'float32'}, timestep {m.opt.timestep} s, "
+          f"{'float64' if a.float64 else 'float32'}, matmul precision {a.matmul_precision}, timestep {m.opt.timestep} s, "
           f"solver Newton iterations={m.opt.iterations} ls_iterations={m.opt.ls_iterations}, "
           f"eulerdamp {'off' if a.no_eulerdamp else 'on'}, "
           f"{nsteps} steps per call, best of {a.repeats}\n")

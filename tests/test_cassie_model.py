@@ -131,6 +131,7 @@ def test_passive_drop_c_mujoco(cassie):
 
 
 @pytest.mark.timeout(120)
+@pytest.mark.slow
 def test_terms_match_c_mujoco(cassie, terms_fn):
     """M, h, passive, Jacobians and COM equal C MuJoCo's to round-off (1e-9: float64 sums of
     ~30 terms of size ≤ 1e2)."""
@@ -158,6 +159,14 @@ def test_terms_match_c_mujoco(cassie, terms_fn):
         np.testing.assert_allclose(T.com, d.subtree_com[cassie.index.pelvis_body], atol=1e-9)
         np.testing.assert_allclose(T.com_vel, jc @ d.qvel, atol=1e-9)
         np.testing.assert_allclose(T.pelvis_R, d.xmat[1].reshape(3, 3), atol=1e-9)
+        for k, b in enumerate(cassie.index.foot_body):
+            jr = np.zeros((3, m.nv))
+            mujoco.mj_jacBody(m, d, None, jr, b)
+            np.testing.assert_allclose(T.foot_Jw[k], jr, atol=1e-9)
+        jr = np.zeros((3, m.nv))
+        mujoco.mj_jacBody(m, d, None, jr, cassie.index.pelvis_body)
+        np.testing.assert_allclose(T.pelvis_Jw, jr, atol=1e-9)
+        np.testing.assert_allclose(T.pelvis_omega, jr @ d.qvel, atol=1e-9)
         np.testing.assert_allclose(T.foot_R, d.site_xmat[list(cassie.index.toe_site)].reshape(2, 3, 3),
                                    atol=1e-9)
 
@@ -176,6 +185,7 @@ def _fd_jdot_qdot(m, d, jac_fn, h=1e-6):
 
 
 @pytest.mark.timeout(120)
+@pytest.mark.slow
 def test_jdot_qdot_matches_finite_differences(cassie, terms_fn):
     # Tolerance 1e-6 m/s²: with h = 1e-6 the truncation error is O(h² |d³p/dt³|) ~ 1e-10 and
     # round-off ~ 1e-16 |J q̇| / h ~ 1e-9; values themselves are O(1-10).
@@ -200,6 +210,16 @@ def test_jdot_qdot_matches_finite_differences(cassie, terms_fn):
         eq = dd.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
         return dd.efc_J.reshape(dd.nefc, m.nv)[eq]
 
+    def feet_Jw(dd):
+        rows = []
+        for b in cassie.index.foot_body:
+            jr = np.zeros((3, m.nv))
+            mujoco.mj_jacBody(m, dd, None, jr, b)
+            rows.append(jr)
+        return np.concatenate(rows)
+
+    np.testing.assert_allclose(T.foot_Jw_dqd.reshape(-1), _fd_jdot_qdot(m, d, feet_Jw), atol=1e-6)
+    np.testing.assert_allclose(T.pelvis_Jw_dqd, 0.0, atol=1e-12)
     fd = _fd_jdot_qdot(m, d, sites_J)
     assert np.abs(fd).max() > 0.1  # non-trivial state
     np.testing.assert_allclose(T.site_jdqd.reshape(-1), fd, atol=1e-6)
@@ -222,6 +242,7 @@ def test_c_mujoco_equality_reference_includes_jdot_qdot(cassie, terms_fn):
 
 
 @pytest.mark.timeout(240)
+@pytest.mark.slow
 def test_mjx_forward_matches_c_mujoco(cassie):
     """qacc from mjx.forward equals C MuJoCo's on random states with feet ≈5 mm in the floor
     (4 contacts active) and joint limits. The equality rows are switched off in both for this
@@ -248,6 +269,7 @@ def test_mjx_forward_matches_c_mujoco(cassie):
 
 
 @pytest.mark.timeout(180)
+@pytest.mark.slow
 def test_make_batch_and_vmapped_terms(cassie, terms_fn):
     key = jax.random.PRNGKey(0)
     batch = cm.make_batch(cassie, 3, key, qpos_noise=0.01, qvel_noise=0.1, forward=False)

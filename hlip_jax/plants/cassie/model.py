@@ -353,6 +353,18 @@ def point_jdot_qdot(cassie: Cassie, d: mjx.Data, points: jax.Array, bodies) -> j
     return jnp.einsum("knj,kn,n->kj", cols, mask, d.qvel)
 
 
+def angular_jacobians(cassie: Cassie, d: mjx.Data, bodies) -> jax.Array:
+    """Rotational Jacobians (k, 3, nv) of static bodies: ω_world = J_ω q̇ [rad/s]."""
+    mask = jnp.asarray(cassie.body_mask[np.asarray(bodies, dtype=int)])
+    return jnp.swapaxes(d.cdof[None, :, :3] * mask[..., None], 1, 2)
+
+
+def angular_jdot_qdot(cassie: Cassie, d: mjx.Data, bodies) -> jax.Array:
+    """``J̇_ω q̇`` (k, 3) [rad/s²]: world angular acceleration of static bodies at q̈ = 0."""
+    mask = jnp.asarray(cassie.body_mask[np.asarray(bodies, dtype=int)])
+    return jnp.einsum("nj,kn,n->kj", _cdof_dot(cassie, d)[:, :3], mask, d.qvel)
+
+
 def site_positions(cassie: Cassie, d: mjx.Data, sites=None) -> jax.Array:
     """World positions (k, 3) of sites (default: the 4 contact sites, toe/heel L/R)."""
     sites = cassie.index.contact_sites if sites is None else sites
@@ -496,8 +508,12 @@ class RobotTerms(NamedTuple):
     loop_jdqd: jax.Array    # (12,) [m/s²]
     pelvis_R: jax.Array     # (3, 3) pelvis → world
     pelvis_omega: jax.Array  # (3,) pelvis angular velocity, world frame [rad/s]
+    pelvis_Jw: jax.Array    # (3, nv) ω_pelvis = pelvis_Jw q̇ (world frame)
+    pelvis_Jw_dqd: jax.Array  # (3,) [rad/s²] (zero: the free joint's axes are body-fixed)
     foot_R: jax.Array       # (2, 3, 3) sole → world
     foot_yaw: jax.Array     # (2,) [rad]
+    foot_Jw: jax.Array      # (2, 3, nv) foot angular-velocity Jacobians (world frame)
+    foot_Jw_dqd: jax.Array  # (2, 3) [rad/s²]
 
 
 def robot_terms(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None) -> RobotTerms:
@@ -505,6 +521,7 @@ def robot_terms(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None) -> 
     d = smooth(cassie, d, mx)
     R = pelvis_rotation(cassie, d)
     w = d.qvel[cassie.index.root_dof + 3: cassie.index.root_dof + 6]
+    pelvis, feet = cassie.index.pelvis_body, list(cassie.index.foot_body)
     return RobotTerms(
         M=mass_matrix(cassie, d, mx), bias=bias_force(d), passive=passive_force(d),
         com=com_position(cassie, d), com_vel=com_velocity(cassie, d),
@@ -514,5 +531,9 @@ def robot_terms(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None) -> 
         loop_res=loop_residual(cassie, d), loop_J=loop_jacobian(cassie, d),
         loop_jdqd=loop_jdot_qdot(cassie, d),
         pelvis_R=R, pelvis_omega=R @ w,
+        pelvis_Jw=angular_jacobians(cassie, d, [pelvis])[0],
+        pelvis_Jw_dqd=angular_jdot_qdot(cassie, d, [pelvis])[0],
         foot_R=foot_rotations(cassie, d), foot_yaw=foot_yaw(cassie, d),
+        foot_Jw=angular_jacobians(cassie, d, feet),
+        foot_Jw_dqd=angular_jdot_qdot(cassie, d, feet),
     )
