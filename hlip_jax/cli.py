@@ -91,8 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("sweep", metavar="SWEEP", help="sweep file, or the name of a shipped sweep")
     r.add_argument("--out", metavar="DIR", help="results directory (default results/<sweep name>)")
     r.add_argument("--batch", type=_positive_int, metavar="N",
-                   help="scenarios per chunk (one compiled call); default 16 on CPU, 1024 on "
-                   "accelerators, or the stored value with --resume")
+                   help="scenarios per chunk (one compiled call); default: at most 16 on CPU "
+                   "(1024 on accelerators), balanced so the last chunk is nearly full; with "
+                   "--resume, the stored value")
     r.add_argument("--resume", action="store_true",
                    help="continue an interrupted run in DIR (skips finished chunks)")
     r.add_argument("--overwrite", action="store_true",
