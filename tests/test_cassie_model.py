@@ -167,6 +167,9 @@ def test_terms_match_c_mujoco(cassie, terms_fn):
         mujoco.mj_jacBody(m, d, None, jr, cassie.index.pelvis_body)
         np.testing.assert_allclose(T.pelvis_Jw, jr, atol=1e-9)
         np.testing.assert_allclose(T.pelvis_omega, jr @ d.qvel, atol=1e-9)
+        right = jax.jit(cm.foot_contact)(T, jnp.int32(1))  # traced side selects the right foot
+        np.testing.assert_allclose(right.J, T.site_J[2:4])
+        np.testing.assert_allclose(right.pos[1], d.site_xpos[cassie.index.heel_site.right], atol=1e-9)
         np.testing.assert_allclose(T.foot_R, d.site_xmat[list(cassie.index.toe_site)].reshape(2, 3, 3),
                                    atol=1e-9)
 

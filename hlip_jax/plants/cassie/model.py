@@ -516,6 +516,24 @@ class RobotTerms(NamedTuple):
     foot_Jw_dqd: jax.Array  # (2, 3) [rad/s²]
 
 
+class FootContact(NamedTuple):
+    """Toe and heel rows of one foot (rows: toe, heel)."""
+
+    pos: jax.Array    # (2, 3) sphere centres [m]
+    J: jax.Array      # (2, 3, nv)
+    jdqd: jax.Array   # (2, 3) [m/s²]
+
+
+def foot_contact(terms: RobotTerms, side) -> FootContact:
+    """Toe/heel rows of foot ``side`` (0 = left, 1 = right; may be a traced int)."""
+    nv = terms.site_J.shape[-1]
+    return FootContact(
+        pos=terms.site_pos.reshape(2, 2, 3)[side],
+        J=terms.site_J.reshape(2, 2, 3, nv)[side],
+        jdqd=terms.site_jdqd.reshape(2, 2, 3)[side],
+    )
+
+
 def robot_terms(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None) -> RobotTerms:
     """Runs :func:`smooth` on ``d`` (its qpos, qvel) and gathers :class:`RobotTerms`."""
     d = smooth(cassie, d, mx)
