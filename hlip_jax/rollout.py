@@ -155,9 +155,31 @@ def default_dtype():
     return jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
 
 
-def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=None):
+class Shapes(NamedTuple):
+    """Array sizes of a batch.  Chunks of one sweep built with the sweep-wide ``shapes_of``
+    share one compile."""
+    n_steps: int
+    n_obstacles: int
+    n_pushes: int
+    t_final: float
+
+
+def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
+    """The smallest shapes that fit every scenario of ``configs``."""
+    K = max(n_steps_of(c) for c in configs)
+    horizon = max(c.mpc.horizon for c in configs)
+    return Shapes(
+        n_steps=K,
+        n_obstacles=max((len(c.obstacles) for c in configs), default=0),
+        n_pushes=max(1, max(len(c.disturbance.pushes) for c in configs)),
+        t_final=max((K + horizon + 2) * (c.hlip.t_ssp + c.hlip.t_dsp) for c in configs))
+
+
+def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=None,
+          shapes: Shapes | None = None):
     """Validated configs → (Scenario batch, Static).  The horizon, the QP settings and the
-    plant must agree across the batch (they are shapes / static settings)."""
+    plant must agree across the batch (they are shapes / static settings).  ``shapes``
+    (default: :func:`shapes_of` the batch) must fit every scenario."""
     if not configs:
         raise ValueError("build: no scenarios")
     first = configs[0]
@@ -169,11 +191,15 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
             if a != b:
                 raise ValueError(f"{name} must be the same for every scenario of a batch "
                                  f"(it fixes shapes/compiled settings): got {a!r} and {b!r}")
-    K = max(n_steps_of(c) for c in configs)
+    need = shapes_of(configs)
+    shapes = shapes or need
+    for f in Shapes._fields:
+        if getattr(shapes, f) < getattr(need, f):
+            raise ValueError(f"shapes.{f} = {getattr(shapes, f)} is smaller than the batch needs "
+                             f"({getattr(need, f)})")
+    K, t_final = shapes.n_steps, shapes.t_final
+    n_obs, n_push = shapes.n_obstacles, shapes.n_pushes
     horizon = first.mpc.horizon
-    t_final = max((K + horizon + 2) * (c.hlip.t_ssp + c.hlip.t_dsp) for c in configs)
-    n_obs = max((len(c.obstacles) for c in configs), default=0)
-    n_push = max(1, max(len(c.disturbance.pushes) for c in configs))
 
     rows = []
     for c in configs:
@@ -344,14 +370,15 @@ run = jax.jit(_run, static_argnames=("static",))
 
 
 def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to: int | None = None,
-             dtype=None) -> Log:
+             dtype=None, shapes: Shapes | None = None) -> Log:
     """Run every scenario of ``configs`` in one compiled, vmapped call and return the Log
     (numpy arrays, scenarios in the order given).  ``pad_to`` pads the batch (repeating the
-    last scenario) so chunks of a sweep share one compile; padding is dropped from the Log."""
+    last scenario) and ``shapes`` (:func:`shapes_of` the whole sweep) fixes the array sizes so
+    chunks of a sweep share one compile; padding is dropped from the Log."""
     configs = list(configs)
     S = len(configs)
     padded = configs + [configs[-1]] * max(0, (pad_to or S) - S)
-    batch, static = build(padded, n_samples=n_samples, dtype=dtype)
+    batch, static = build(padded, n_samples=n_samples, dtype=dtype, shapes=shapes)
     with jax.default_matmul_precision("highest"):
         out = run(batch, static)
     out = jax.tree.map(lambda a: np.asarray(a)[:S], out)

@@ -41,6 +41,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import datetime as _dt
+import functools
 import io
 import json
 import math
@@ -501,9 +502,11 @@ def default_batch(n: int, cap: int | None = None) -> int:
     return max(1, math.ceil(n / n_chunks))
 
 
-def _default_simulate():
+def _default_simulate(configs):
+    """The closed loop with sweep-wide array shapes, so every chunk reuses one compile."""
     from hlip_jax import rollout
-    return rollout.simulate
+    shapes = rollout.shapes_of(configs)
+    return functools.partial(rollout.simulate, shapes=shapes)
 
 
 def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resume: bool = False,
@@ -591,7 +594,7 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
         man["resumed_at"].append(_now())
     _write_manifest(out, man)
 
-    sim = simulate if simulate is not None else _default_simulate()
+    sim = simulate if simulate is not None else _default_simulate(configs)
     t0 = time.monotonic()
     bar = Progress(n, sw.name, stream=stream, enabled=progress)
     done = sum(b - a for i, (a, b) in enumerate(ranges) if _chunk_ok(chunk_path(out, i), a, b))
