@@ -900,9 +900,17 @@ class Coverage(NamedTuple):
     n: int
 
 
-def coverage(E, e_samples, mask=None, tol: float = 1e-9) -> Coverage:
-    """Coverage bracket of error samples e (..., n) (rows with ``mask`` False ignored)."""
+def coverage(E, e_samples, mask=None, tol: float | None = None) -> Coverage:
+    """Coverage bracket of error samples e (..., n) (rows with ``mask`` False ignored).
+
+    ``tol`` (relative to the set's size) defaults to 1e-9, raised to 50 machine epsilons of
+    the samples' dtype: errors logged in float32 carry ~1e-7 relative rounding, and a sample
+    that lies on E's boundary by construction (W estimated from the same data) must count
+    as inside."""
     e = np.asarray(e_samples)
+    if tol is None:
+        eps = np.finfo(e.dtype).eps if np.issubdtype(e.dtype, np.floating) else 0.0
+        tol = max(1e-9, 50.0 * float(eps))
     m = np.ones(e.shape[:-1], bool) if mask is None else np.asarray(mask, bool)
     if m.shape != e.shape[:-1]:
         raise ValueError(f"mask: shape {e.shape[:-1]} expected, got {m.shape}")
