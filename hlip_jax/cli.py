@@ -104,6 +104,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip the per-scenario invariant-set coverage columns of summary.csv "
                    "(≈ 30 ms per scenario; the report still analyses each path)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
+    r.add_argument("--distributed", action="store_true",
+                   help="several hosts: call jax.distributed.initialize() (coordinator, process "
+                   "count and id from the environment, e.g. JAX_COORDINATOR_ADDRESS / SLURM); every "
+                   "process runs this same command, chunks are sharded over all devices of all "
+                   "hosts, and process 0 writes DIR and the report")
     r.add_argument("--max-chunks", type=_positive_int, help=argparse.SUPPRESS)
 
     rp = sub.add_parser("report", help="(re)write the report of a results directory",
@@ -146,6 +151,14 @@ def cmd_run(args) -> int:
     if args.resume and args.overwrite:
         raise UserError("--resume and --overwrite exclude each other")
     sim = _simulate_override()
+    if args.distributed:
+        import jax
+        jax.distributed.initialize()
+        if jax.process_index() != 0:
+            # the others compute their shards and keep a private copy of the store
+            out = out / f".process-{jax.process_index()}"
+            args.no_report = True
+            args.quiet = True
     if not args.quiet:
         print(f"{PROG}: {sw.name}: {len(sw.scenarios)} scenarios -> {out}", file=sys.stderr)
     res = store.run_sweep(sw, out, batch=args.batch, resume=args.resume,

@@ -233,7 +233,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
 
     def cast(x):
         x = np.asarray(x)
-        return jnp.asarray(x, dtype) if np.issubdtype(x.dtype, np.floating) else jnp.asarray(x)
+        return x.astype(dtype) if np.issubdtype(x.dtype, np.floating) else x
 
     batch = jax.tree.map(cast, batch)
     settings = qp.Settings(eps_abs=first.mpc.qp_eps, eps_rel=first.mpc.qp_eps,
@@ -369,22 +369,57 @@ def _run(batch: Scenario, static: Static):
 run = jax.jit(_run, static_argnames=("static",))
 
 
+def scenario_sharding(devices=None):
+    """Sharding that splits the leading (scenario) axis over ``devices`` (default: every
+    device of every process, ``jax.devices()``): a 1-D ``Mesh`` with axis "scenarios".
+    Scenarios never communicate, so XLA partitions the vmapped loop without collectives."""
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+    devices = jax.devices() if devices is None else list(devices)
+    return NamedSharding(Mesh(np.asarray(devices), ("scenarios",)), PartitionSpec("scenarios"))
+
+
+def place(batch, sharding):
+    """Put a host (numpy) batch on the mesh.  Each process builds the same batch from the
+    same configs and contributes only the shards of its own devices, so this works
+    unchanged after ``jax.distributed.initialize`` on several hosts."""
+    def put(a):
+        a = np.asarray(a)
+        return jax.make_array_from_callback(a.shape, sharding, lambda idx: a[idx])
+    return jax.tree.map(put, batch)
+
+
+def _to_host(a):
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+        return np.asarray(multihost_utils.process_allgather(a, tiled=True))
+    return np.asarray(a)
+
+
 def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to: int | None = None,
-             dtype=None, shapes: Shapes | None = None) -> Log:
+             dtype=None, shapes: Shapes | None = None, devices=None) -> Log:
     """Run every scenario of ``configs`` in one compiled, vmapped call and return the Log
-    (numpy arrays, scenarios in the order given).  ``pad_to`` pads the batch (repeating the
-    last scenario) and ``shapes`` (:func:`shapes_of` the whole sweep) fixes the array sizes so
-    chunks of a sweep share one compile; padding is dropped from the Log."""
+    (numpy arrays, scenarios in the order given).
+
+    ``pad_to`` pads the batch (repeating the last scenario) and ``shapes`` (:func:`shapes_of`
+    the whole sweep) fixes the array sizes, so chunks of a sweep share one compile; padding
+    is dropped from the Log.  With several devices (``devices``, default all of
+    ``jax.devices()``) the batch is padded to a multiple of their number and sharded over
+    them along the scenario axis (:func:`scenario_sharding`)."""
     configs = list(configs)
     S = len(configs)
-    padded = configs + [configs[-1]] * max(0, (pad_to or S) - S)
+    devices = jax.devices() if devices is None else list(devices)
+    n = max(pad_to or S, S)
+    n = -(-n // len(devices)) * len(devices)
+    padded = configs + [configs[-1]] * (n - S)
     batch, static = build(padded, n_samples=n_samples, dtype=dtype, shapes=shapes)
+    host = batch
+    if len(devices) > 1:
+        batch = place(batch, scenario_sharding(devices))
     with jax.default_matmul_precision("highest"):
         out = run(batch, static)
-    out = jax.tree.map(lambda a: np.asarray(a)[:S], out)
+    out = jax.tree.map(lambda a: _to_host(a)[:S], out)
     valid = out["valid"]
     valid_w = valid & np.concatenate([valid[:, 1:], np.zeros((S, 1), bool)], axis=1)
     out["w"] = np.where(valid_w[..., None, None], out["w"], np.nan)
-    A = np.asarray(batch.mpc.A)[:S]
-    Bm = np.asarray(batch.mpc.B)[:S]
-    return Log(A=A, B=Bm, K_gain=np.asarray(batch.gain)[:S], **out)
+    return Log(A=np.asarray(host.mpc.A)[:S], B=np.asarray(host.mpc.B)[:S],
+               K_gain=np.asarray(host.gain)[:S], **out)
