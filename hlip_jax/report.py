@@ -169,7 +169,8 @@ def invariant_analysis(log, members: list[int]):
     valid = np.cumprod(np.asarray(log["valid"][sel], bool), axis=1).astype(bool)
     hold = 0.5 if len(members) >= 2 else 0.0
     return inv.analyse(log["x_robot"][sel], log["u_robot"][sel], valid, log["e"][sel],
-                       A, B, K, W_estimator="box", holdout_fraction=hold, seed=0)
+                       A, B, K, W_estimator="box", holdout_fraction=hold, seed=0,
+                       min_halfwidth=store.W_MIN_HALFWIDTH)
 
 
 def fig_invariant(an, log, members, path: Path, title: str) -> None:

@@ -298,6 +298,12 @@ def error_model(log: dict, s: int):
     return A[1:, 1:], B[1:], K[:, -2:], slice(1, 3)
 
 
+#: W boxes narrower than this half-width in an axis are widened to it [m or m/s]: a state the
+#: disturbance never reaches (e.g. every axis of a noise-free float64 H-LIP run) would
+#: otherwise give a flat W, for which no mRPI set with an interior exists.
+W_MIN_HALFWIDTH = 1e-6
+
+
 def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
     """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring)."""
     from hlip_jax import invariant as inv
@@ -320,14 +326,14 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
             continue
         try:
             W = inv.estimate_w(w[:, p], wmask, "box")
-            E = inv.mrpi(Acl, W)
+            E = inv.mrpi(Acl, W, min_halfwidth=W_MIN_HALFWIDTH)
             c = inv.coverage(E, e[:, p], mask)
             out[keys[0]], out[keys[1]] = c.inner, c.outer
             tr = wmask & (np.arange(wmask.size) + 1 < half)
             te = mask & (np.arange(mask.size) >= half)
             if tr.sum() >= 1 and te.sum() >= 1:
                 Wt = inv.estimate_w(w[:, p], tr, "box")
-                Et = inv.mrpi(Acl, Wt)
+                Et = inv.mrpi(Acl, Wt, min_halfwidth=W_MIN_HALFWIDTH)
                 out[keys[2]] = inv.coverage(Et, e[:, p], te).outer
         except Exception:   # degenerate W (e.g. a single sample): leave NaN
             continue
