@@ -1,0 +1,102 @@
+"""Cassie standing under the CLF-QP at scale: physics-only vs physics + CLF-QP throughput, and
+how many of a batch of randomly perturbed robots stand.
+
+Every robot starts at the ``stand`` keyframe with ±``--noise`` rad on every hinge; one control
+tick is one condensed-dynamics CLF-QP (``hlip_jax.qp``, warm-started) and 2 MJX physics steps
+(1 kHz control, 2 kHz physics).  The physics-only run steps the same batch with zero torque for
+the same number of ticks.  A robot is *upright* when, at the end, its pelvis is above 0.85 m and
+its roll and pitch are under 0.1 rad; the last column also asks its COM height to be within
+2 cm of the target.
+
+    python benchmarks/cassie_stand_bench.py                                  # CPU: batch 8
+    python benchmarks/cassie_stand_bench.py --batch 1024 4096 --seconds 2    # GPU
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--batch", type=int, nargs="+", default=[8])
+    ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds per robot")
+    ap.add_argument("--chunk", type=int, default=250, help="control ticks per compiled call")
+    ap.add_argument("--noise", type=float, default=0.03, help="hinge offsets [rad]")
+    ap.add_argument("--x64", action="store_true", help="float64 (default float32)")
+    args = ap.parse_args(argv)
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+    import jax
+    if args.x64:
+        jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+    import numpy as np
+
+    from hlip_jax.plants.cassie import control, model
+
+    cassie = control.load()
+    dev = jax.devices()[0]
+    print(f"backend {jax.default_backend()} device {dev.device_kind}; {args.seconds} s per robot, "
+          f"{args.chunk} ticks per call, {'float64' if args.x64 else 'float32'}")
+    print("| batch | compile [s] | CLF-QP + physics [robot-s/s] | physics steps/s (with CLF-QP) | "
+          "physics only [steps/s] | ratio | upright | COM z within 2 cm |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    n_calls = max(1, int(round(args.seconds / (args.chunk * control.CONTROL_DT))))
+    for B in args.batch:
+        d = model.make_batch(cassie, B, jax.random.PRNGKey(B), qpos_noise=args.noise)
+        d = jax.jit(jax.vmap(lambda x: control.canonical(cassie, x)))(d)
+        com = jax.jit(jax.vmap(lambda x: model.robot_terms(cassie, x).com))(d)
+        target = jnp.concatenate([com[:, :2], com[:, 2:3] - 0.02, jnp.zeros((B, 1), com.dtype)], 1)
+        warm = jax.vmap(lambda _: control.warm_zeros(cassie, com.dtype))(jnp.arange(B))
+
+        @jax.jit
+        def chunk(d, warm, t0, target):
+            def one(d, w, t, tg):
+                return control.stand_rollout(cassie, d, tg, args.chunk, warm=w, t0=t)
+            return jax.vmap(one)(d, warm, t0, target)
+
+        @jax.jit
+        def physics_only(d):
+            def one(d):
+                def tick(d, _):
+                    return control.physics(cassie, d, jnp.zeros(cassie.index.nu, d.qpos.dtype),
+                                           jnp.zeros(3, d.qpos.dtype)), None
+                return jax.lax.scan(tick, d, None, length=args.chunk)[0]
+            return jax.vmap(one)(d)
+
+        t0 = time.perf_counter()
+        out = chunk(d, warm, jnp.zeros(B, com.dtype), target)
+        jax.block_until_ready(out)
+        compile_s = time.perf_counter() - t0
+        dd, ww = d, warm
+        t0 = time.perf_counter()
+        for i in range(n_calls):
+            dd, ww, log = chunk(dd, ww, jnp.full(B, i * args.chunk * control.CONTROL_DT, com.dtype),
+                                target)
+        jax.block_until_ready(log)
+        run_s = time.perf_counter() - t0
+        jax.block_until_ready(physics_only(d))
+        t0 = time.perf_counter()
+        dp = d
+        for _ in range(n_calls):
+            dp = physics_only(dp)
+        jax.block_until_ready(dp)
+        phys_s = time.perf_counter() - t0
+        ticks = n_calls * args.chunk
+        steps = ticks * control.SUBSTEPS
+        z = np.asarray(log.pelvis_z[:, -1])
+        rpy = np.asarray(log.rpy[:, -1])
+        comz = np.asarray(log.com[:, -1, 2])
+        stood = (z > 0.85) & (np.abs(rpy[:, :2]).max(1) < 0.1) & np.isfinite(z)
+        within = stood & (np.abs(comz - np.asarray(target[:, 2])) < 0.02)
+        rate = B * steps / run_s
+        prate = B * steps / phys_s
+        print(f"| {B} | {compile_s:.1f} | {B * ticks * control.CONTROL_DT / run_s:,.1f} | {rate:,.0f} | "
+              f"{prate:,.0f} | {rate / prate:.2f} | {stood.mean():.3f} ({stood.sum()}/{B}) | "
+              f"{within.mean():.3f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
