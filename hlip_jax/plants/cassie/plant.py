@@ -1,0 +1,455 @@
+"""The Cassie plant: MJX Cassie walking one step per call under the H-LIP stepping law and a
+CLF-QP, behind the step-level interface of :mod:`hlip_jax.plants.base`.
+
+One call of :func:`step` runs SSP⁻_k → SSP⁻_{k+1} as a ``lax.scan`` over 1 kHz control ticks
+(2 MJX steps each):
+
+* DSP (``cmd.t_dsp``): both feet on the ground (the foot that lands is added to the contact
+  set when it touches, see below), outputs: pelvis orientation, COM height; both foot motors
+  passive (the H-LIP's DSP has no horizontal COM force, p̈ = 0).
+* SSP (``cmd.t_ssp``) on the new stance foot ``1 − cmd.stance``; the stance foot motor is
+  passive (a free pivot in pitch; the flat foot still rests on toe and heel), the other foot
+  swings to the step chosen every tick by the stepping law
+
+      u_des(t) = u_H,k+1 + K (x_R(t) − x_H(t)),
+
+  x_R(t) = [c, p, v] per plane of the robot now (p relative to the stance foot) and x_H(t) the
+  H-LIP at the same SSP time (flow of ``cmd.x_hlip`` through its DSP and the step u_H,k); the
+  error e(t) = x_R(t) − x_H(t) is carried to SSP⁻ by the LIP flow over the rest of the SSP
+  (the same linear flow for both, so this is the pre-impact error the law's K is made for).
+  Outputs (:mod:`outputs`): pelvis roll/pitch 0 and yaw blended to the heading, COM height
+  z0, swing foot x, y = (1 − c) x⁺ + c (stance + u_des), swing height profile, sole flat and
+  swing-foot yaw (1 − c) yaw⁺ + c θ_d.
+* Touchdown is scheduled by time; a site of the landing foot joins the contact set only when
+  it is on the ground (≤ 4 mm): an early touchdown in the last quarter of SSP turns that
+  foot into a contact at once (its outputs are dropped), a late one keeps the foot reaching
+  down (the height target keeps descending) into the DSP until it touches.
+
+The number of ticks per step is static (``Params.ticks`` carries it as a shape); ticks past
+T_SSP + T_DSP are idle (the state is held).  ``failed`` is set when the pelvis drops below
+``FALL_HEIGHT``, tilts more than ``FALL_TILT`` or the state is not finite.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from mujoco import mjx
+
+from hlip_jax import hlip
+from hlip_jax.plants.base import StepCommand, StepResult
+from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs
+
+FALL_HEIGHT = 0.55        # [m] pelvis height below which the robot has fallen
+FALL_TILT = 0.7           # [rad] pelvis roll or pitch beyond which it has fallen
+CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
+STEP_LIMIT_X = 0.6        # [m] |u_x| clip of the swing target
+STEP_WIDTH = (0.1, 0.5)   # [m] (min, max) |u_y| of the swing target, sign by swing side
+COM_HEIGHT = (0.65, 0.9)  # [m] allowed COM height targets (z0 is clipped to it)
+CLEARANCE = 0.08          # [m] swing apex
+STRIKE = 0.01             # [m] swing target depth below the ground at T_SSP
+REACH = 0.8               # c(t) reaches 1 at REACH · T_SSP
+FREEZE = 0.85             # u_des is re-evaluated until FREEZE · T_SSP, then held
+#: torque budget of a foot motor while its foot is on the ground, as a fraction of its limit:
+#: 0 makes the stance foot a passive pivot (the H-LIP's point foot)
+PASSIVE_FOOT_FRACTION = 1.0
+#: 1 enables the low-gain COM tracking of the H-LIP trajectory through the ankles (rows 4, 5)
+ANKLE_ASSIST = 1.0
+
+#                   rot x3   z   cxy   left foot    right foot   slopes  yaws
+WALK_OMEGA = np.array([8, 8, 8, 8, 3, 3, 15, 15, 15, 15, 15, 15, 15, 15, 10, 10], float)
+WALK_WEIGHT = np.array([1, 1, 1, 1, 0.3, 0.3] + [1] * 10, float)
+WALK_GAINS = clfqp.make_gains(WALK_OMEGA, weight=WALK_WEIGHT)
+
+_CASSIE = None
+
+
+def cassie() -> model.Cassie:
+    """The plant's model (loaded once per process, leaf springs damped: see control.load)."""
+    global _CASSIE
+    if _CASSIE is None:
+        _CASSIE = control.load()
+    return _CASSIE
+
+
+class Params(NamedTuple):
+    push_start: jax.Array    # (P,) [s]
+    push_end: jax.Array      # (P,) [s]
+    push_force: jax.Array    # (P, 2) world x, y [N]
+    ticks: jax.Array         # (n_ticks,) zeros: its length is the static tick budget per step
+
+
+class State(NamedTuple):
+    d: mjx.Data
+    warm: tuple
+    time: jax.Array          # plant clock at the current SSP⁻ [s]
+    yaw: jax.Array           # pelvis heading target at the current SSP⁻ [rad]
+    land_xy: jax.Array       # (2,) where the landing foot was aimed [m]
+    key: jax.Array
+
+
+def tick_budget(t_step: float) -> int:
+    """Static ticks per step: T rounded up to 0.1 s, at least 0.4 s (so batches with
+    T ≤ 0.4 s share one shape)."""
+    return int(max(400, 100 * math.ceil(t_step / 0.1 - 1e-9)))
+
+
+def make_params(cfg, n_push: int) -> Params:
+    """Per-scenario plant data from a :class:`hlip_jax.config.ScenarioConfig`; pushes act on
+    the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`)."""
+    pushes = list(cfg.disturbance.pushes)
+    if len(pushes) > n_push:
+        raise ValueError(f"disturbance.pushes: {len(pushes)} pushes, at most {n_push} allowed")
+    start = np.full(n_push, -1.0)
+    end = np.full(n_push, -1.0)
+    force = np.zeros((n_push, 2))
+    for i, p in enumerate(pushes):
+        start[i], end[i] = p.time, p.time + p.duration
+        a = np.deg2rad(p.direction)
+        force[i] = p.force * np.array([np.cos(a), np.sin(a)])
+    ticks = np.zeros(tick_budget(cfg.hlip.t_ssp + cfg.hlip.t_dsp))
+    return Params(push_start=start, push_end=end, push_force=force, ticks=ticks)
+
+
+def _foot_xy(terms):
+    return outputs.foot_centres(terms)[:, :2]
+
+
+def init(params: Params, x0, u0, stance0, key) -> State:
+    """Cassie at the "stand" keyframe, shifted so its COM is at x0's c (per plane), heading 0.
+
+    Both feet are on the ground, so the first step's DSP starts from rest; u0 and stance0
+    are implied by the pose (left foot 0.26 m left of the right one)."""
+    del u0, stance0
+    c = cassie()
+    m = c.mj_model
+    import mujoco
+
+    dm = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, dm, c.index.stand_key)
+    mujoco.mj_forward(m, dm)
+    com = dm.subtree_com[c.index.pelvis_body].copy()
+    d = mjx.put_data(m, dm, impl=c.mjx_model.impl)
+    dt = x0.dtype
+    d = jax.tree.map(lambda a: a.astype(dt) if jnp.issubdtype(a.dtype, jnp.floating) else a, d)
+    qpos = d.qpos.at[0].add(x0[0, 0] - com[0]).at[1].add(x0[1, 0] - com[1])
+    d = control.canonical(c, d.replace(qpos=qpos))
+    feet = outputs.foot_centres(model.robot_terms(c, d))
+    return State(d=d, warm=control.warm_zeros(c, dt), time=jnp.zeros((), dt),
+                 yaw=jnp.zeros((), dt), land_xy=feet[0, :2], key=key)
+
+
+def _hlip_at(cmd: StepCommand, t_in_ssp):
+    """H-LIP [c, p, v] per plane (2, 3) at time t_in_ssp into the SSP of this step."""
+    c, p, v = cmd.x_hlip[:, 0], cmd.x_hlip[:, 1], cmd.x_hlip[:, 2]
+    p_d = p + v * cmd.t_dsp
+    c_d = c + v * cmd.t_dsp
+    p_plus = p_d - cmd.u_hlip
+    ps, vs = hlip.ssp_trajectory(p_plus, v, t_in_ssp, cmd.z0)
+    return jnp.stack([c_d + ps - p_plus, ps, vs], axis=-1)
+
+
+def _hlip_dsp(cmd: StepCommand, tau):
+    """H-LIP [c, p, v] (2, 3) at time tau into the DSP that starts at SSP⁻_k (p relative to
+    the old stance foot, p̈ = 0)."""
+    c, p, v = cmd.x_hlip[:, 0], cmd.x_hlip[:, 1], cmd.x_hlip[:, 2]
+    return jnp.stack([c + v * tau, p + v * tau, v], axis=-1)
+
+
+def _flow_to_impact(x, tau, z0):
+    """[c, p, v] per plane (2, 3) flowed by the LIP for ``tau`` [s] (c moves with p)."""
+    p, v = hlip.ssp_trajectory(x[:, 1], x[:, 2], tau, z0)
+    return jnp.stack([x[:, 0] + p - x[:, 1], p, v], axis=-1)
+
+
+def _robot_x(terms, stance):
+    feet = _foot_xy(terms)
+    st = jnp.where(stance == 0, feet[0], feet[1])
+    c = terms.com[:2]
+    return jnp.stack([c, c - st, terms.com_vel[:2]], axis=-1), st
+
+
+def _fell(d):
+    R = model.quat_to_mat(d.qpos[3:7] / jnp.linalg.norm(d.qpos[3:7]))
+    tilt = jnp.arccos(jnp.clip(R[2, 2], -1.0, 1.0))
+    finite = jnp.all(jnp.isfinite(d.qpos)) & jnp.all(jnp.isfinite(d.qvel))
+    return (~finite) | (d.qpos[2] < FALL_HEIGHT) | (tilt > FALL_TILT)
+
+
+class TickLog(NamedTuple):
+    com: jax.Array
+    feet: jax.Array
+    tau: jax.Array
+    V: jax.Array
+    contact: jax.Array
+    status: jax.Array
+
+
+def step_with_log(params: Params, state: State, cmd: StepCommand):
+    """:func:`step` that also returns the per-tick log (for plots and tests)."""
+    c = cassie()
+    d0 = state.d
+    dt = d0.qpos.dtype
+    ctrl = cassie().ctrl_range
+    lo_all = jnp.asarray(ctrl[:, 0], dt)
+    hi_all = jnp.asarray(ctrl[:, 1], dt)
+    foot_motor = np.array([c.index.actuators[0][4], c.index.actuators[1][4]])
+    springs = dynamics.spring_dofs(c)
+    t_ssp, t_dsp = cmd.t_ssp.astype(dt), cmd.t_dsp.astype(dt)
+    t_end = t_ssp + t_dsp
+    new_st = 1 - cmd.stance                      # stance foot of the coming SSP
+    sw = cmd.stance                              # foot that swings in the coming SSP
+    z0 = jnp.clip(cmd.z0, *COM_HEIGHT)
+    terms0 = model.robot_terms(c, d0)
+    feet0 = outputs.foot_centres(terms0)
+    yaw_from = state.yaw
+    dyaw = outputs.wrap(cmd.heading - yaw_from)
+    foot_yaw0 = terms0.foot_yaw
+
+    class Carry(NamedTuple):
+        d: mjx.Data
+        warm: tuple
+        sw_start: jax.Array      # (3,) swing foot position at lift-off
+        sw_yaw0: jax.Array
+        u_last: jax.Array        # (2,) last swing target step
+        fell: jax.Array
+
+    def tick(carry: Carry, i):
+        d = carry.d
+        tau_t = i.astype(dt) * control.CONTROL_DT          # time since SSP⁻_k
+        active = tau_t < t_end - 1e-9
+        in_dsp = tau_t < t_dsp
+        ts = jnp.maximum(tau_t - t_dsp, 0.0)               # time into SSP
+        terms = model.robot_terms(c, d)
+        meas = outputs.measure(terms, d.qvel, c.index.root_dof)
+        feet = outputs.foot_centres(terms)
+        site_z = terms.site_pos[:, 2] - model.FOOT_SPHERE_RADIUS
+        touching = site_z < CONTACT_GAP
+        side_of_site = jnp.array([0, 0, 1, 1])
+        is_stance_site = side_of_site == new_st
+        # landing foot in DSP, swing foot near the end of SSP: contact only when touching
+        late_ssp = ts > 0.75 * t_ssp
+        other_ok = jnp.where(in_dsp, touching, touching & late_ssp)
+        contact = jnp.where(is_stance_site, True, other_ok).astype(dt)
+        foot_contact = jnp.stack([contact[0] + contact[1] > 0, contact[2] + contact[3] > 0])
+        # ---- stepping law (world planes)
+        x_r, st_xy = _robot_x(terms, new_st)
+        x_h = _hlip_at(cmd, ts)
+        # the error at this phase, carried to SSP⁻ by the (linear) LIP flow of the rest of
+        # the SSP: the step law's K is designed for pre-impact errors
+        u_des = cmd.u_hlip_next + jnp.sum(
+            cmd.gain * _flow_to_impact(x_r - x_h, t_ssp - jnp.minimum(ts, t_ssp), cmd.z0), axis=-1)
+        sgn = jnp.where(sw == 0, 1.0, -1.0)
+        uy = sgn * jnp.clip(sgn * u_des[1], *STEP_WIDTH)
+        u_des = jnp.stack([jnp.clip(u_des[0], -STEP_LIMIT_X, STEP_LIMIT_X), uy])
+        u_des = jnp.where(ts < FREEZE * t_ssp, u_des, carry.u_last)
+        # ---- desired outputs
+        cb, cdot, cddot = outputs.with_derivatives(lambda t: outputs.blend(t, t_ssp, REACH), ts)
+        yaw_d = yaw_from + cb * dyaw
+        R_d = outputs.rot_z(yaw_d)
+        y = jnp.zeros(outputs.N_OUT, dt).at[outputs.COM_Z].set(z0)
+        yd = jnp.zeros(outputs.N_OUT, dt).at[2].set(cdot * dyaw)
+        ydd = jnp.zeros(outputs.N_OUT, dt)
+        # swing foot (in SSP): horizontal blend to stance + u_des, height profile
+        target_xy = st_xy + u_des
+        start_xy = carry.sw_start[:2]
+        sxy = (1 - cb) * start_xy + cb * target_xy
+        vxy = cdot * (target_xy - start_xy)
+        axy = cddot * (target_xy - start_xy)
+        hz, hzd, hzdd = outputs.with_derivatives(
+            lambda t: outputs.swing_height(t, t_ssp, CLEARANCE, STRIKE), ts)
+        # landing foot in DSP (late touchdown): hold xy, keep reaching down
+        lz, lzd, lzdd = outputs.with_derivatives(
+            lambda t: outputs.swing_height(t, t_ssp, CLEARANCE, STRIKE), t_ssp + tau_t)
+        fx = jnp.where(in_dsp, state.land_xy[0], sxy[0])
+        fy = jnp.where(in_dsp, state.land_xy[1], sxy[1])
+        fz = jnp.where(in_dsp, lz, hz)
+        f_vel = jnp.where(in_dsp, jnp.array([0.0, 0.0, 1.0]) * lzd, jnp.stack([vxy[0], vxy[1], hzd]))
+        f_acc = jnp.where(in_dsp, jnp.array([0.0, 0.0, 1.0]) * lzdd, jnp.stack([axy[0], axy[1], hzdd]))
+        fyaw = jnp.where(in_dsp, cmd.heading * 0 + yaw_from, (1 - cb) * carry.sw_yaw0 + cb * cmd.heading)
+        fyaw_d = jnp.where(in_dsp, 0.0, cdot * outputs.wrap(cmd.heading - carry.sw_yaw0))
+        # the moving foot: in DSP the landing foot (= new stance), in SSP the swing foot
+        mv = jnp.where(in_dsp, new_st, sw)
+        for s in (0, 1):
+            sl = outputs.FOOT_POS[s]
+            on = mv == s
+            y = y.at[sl].set(jnp.where(on, jnp.stack([fx, fy, fz]), 0.0))
+            yd = yd.at[sl].set(jnp.where(on, f_vel, 0.0))
+            ydd = ydd.at[sl].set(jnp.where(on, f_acc, 0.0))
+            y = y.at[outputs.FOOT_YAW[s]].set(jnp.where(on, fyaw, 0.0))
+            yd = yd.at[outputs.FOOT_YAW[s]].set(jnp.where(on, fyaw_d, 0.0))
+        # ankle assist: the COM follows the H-LIP's own trajectory (relative to the stance
+        # foot) with a soft low-gain output, in both planes in DSP, sagittally in SSP
+        x_hd = _hlip_dsp(cmd, jnp.minimum(tau_t, t_dsp))
+        p_h = jnp.where(in_dsp, x_hd[:, 1], x_h[:, 1])
+        v_h = jnp.where(in_dsp, x_hd[:, 2], x_h[:, 2])
+        a_h = jnp.where(in_dsp, 0.0, hlip.GRAVITY / cmd.z0 * x_h[:, 1])
+        old_xy = jnp.where(cmd.stance == 0, feet0[0, :2], feet0[1, :2])
+        ref_xy = jnp.where(in_dsp, old_xy, st_xy)
+        y = y.at[outputs.COM_XY].set(ref_xy + p_h)
+        yd = yd.at[outputs.COM_XY].set(v_h)
+        ydd = ydd.at[outputs.COM_XY].set(a_h)
+        mask = jnp.zeros(outputs.N_OUT, dt).at[:4].set(1.0)
+        mask = mask.at[4].set(ANKLE_ASSIST).at[5].set(jnp.where(in_dsp, ANKLE_ASSIST, 0.0))
+        for s in (0, 1):
+            free = (mv == s) & ~foot_contact[s]
+            rows = np.r_[np.arange(16)[outputs.FOOT_POS[s]], outputs.FOOT_SLOPE[s], outputs.FOOT_YAW[s]]
+            mask = mask.at[rows].set(jnp.where(free, 1.0, 0.0))
+        des = outputs.Desired(y=y, ydot=yd, yddot=ydd, R=R_d, mask=mask)
+        # ---- torque limits: a foot motor is passive while its foot is on the ground
+        lo, hi = lo_all, hi_all
+        for s in (0, 1):
+            lim = jnp.where(foot_contact[s], PASSIVE_FOOT_FRACTION, 1.0)
+            lo = lo.at[foot_motor[s]].multiply(lim)
+            hi = hi.at[foot_motor[s]].multiply(lim)
+        cond = dynamics.condense(terms, c.actuation, contact, springs)
+        res = clfqp.solve(meas, des, cond, contact, lo, hi, WALK_GAINS, carry.warm)
+        # ---- push and physics
+        t_abs = state.time + tau_t
+        on = (t_abs >= params.push_start) & (t_abs < params.push_end)
+        f = jnp.sum(jnp.where(on[:, None], params.push_force, 0.0), axis=0)
+        d_new = control.physics(c, d, res.tau, jnp.concatenate([f, jnp.zeros(1, dt)]))
+        keep = active & ~carry.fell
+        d_next = jax.tree.map(lambda a, b: jnp.where(keep, a, b), d_new, d)
+        warm = jax.tree.map(lambda a, b: jnp.where(keep, a, b), res.warm, carry.warm)
+        # lift-off bookkeeping: at the first SSP tick record the swing foot pose
+        first_ssp = (tau_t >= t_dsp) & (tau_t < t_dsp + control.CONTROL_DT)
+        sw_pos = jnp.where(sw == 0, feet[0], feet[1])
+        sw_yaw = jnp.where(sw == 0, terms.foot_yaw[0], terms.foot_yaw[1])
+        sw_start = jnp.where(first_ssp, sw_pos, carry.sw_start)
+        sw_yaw0 = jnp.where(first_ssp, sw_yaw, carry.sw_yaw0)
+        # the target is frozen over the last part of the SSP (the foot is arriving)
+        u_last = jnp.where(active & ~in_dsp & (ts < FREEZE * t_ssp), u_des, carry.u_last)
+        fell = carry.fell | (active & _fell(d_next))
+        log = TickLog(com=terms.com, feet=feet, tau=res.tau, V=res.V, contact=contact,
+                      status=res.status)
+        return Carry(d_next, warm, sw_start, sw_yaw0, u_last, fell), log
+
+    sw_pos0 = jnp.where(sw == 0, feet0[0], feet0[1])
+    sw_yaw00 = jnp.where(sw == 0, foot_yaw0[0], foot_yaw0[1])
+    carry0 = Carry(d0, state.warm, sw_pos0, sw_yaw00, cmd.u_hlip_next.astype(dt),
+                   jnp.bool_(False))
+    n = params.ticks.shape[0]
+    carry, log = jax.lax.scan(tick, carry0, jnp.arange(n))
+    # ---- SSP⁻_{k+1}: robot state, executed step
+    terms = model.robot_terms(c, carry.d)
+    x_r, st_xy = _robot_x(terms, new_st)
+    feet = outputs.foot_centres(terms)
+    sw_xy = jnp.where(sw == 0, feet[0, :2], feet[1, :2])
+    u_robot = sw_xy - st_xy
+    failed = carry.fell | ~jnp.all(jnp.isfinite(x_r))
+    new = State(d=carry.d, warm=carry.warm, time=state.time + t_end, yaw=cmd.heading.astype(dt),
+                land_xy=st_xy + carry.u_last, key=state.key)
+    return new, StepResult(x_robot=x_r, u_robot=u_robot, failed=failed), log
+
+
+def step(params: Params, state: State, cmd: StepCommand):
+    """One walking step SSP⁻_k → SSP⁻_{k+1} (module doc). Returns (state, StepResult)."""
+    new, res, _ = step_with_log(params, state, cmd)
+    return new, res
+
+
+# ----------------------------------------------------------------------------- orbit driver
+
+
+class WalkLog(NamedTuple):
+    """Per-step record of :func:`walk_orbits` (leading axes: robots, steps)."""
+    x_robot: np.ndarray   # (B, K+1, 2, 3) robot [c, p, v] at SSP⁻_0..K
+    u_robot: np.ndarray   # (B, K+1, 2) step placed at SSP⁻_0..K
+    x_hlip: np.ndarray    # (B, K+1, 2, 3)
+    u_hlip: np.ndarray    # (B, K+1, 2)
+    failed: np.ndarray    # (B, K) bool
+    heading: np.ndarray   # (B, K+1)
+    w: np.ndarray         # (B, K-1, 2, 3) S2S residual x_{k+1} − A x_k − B u_k (from step 1 on)
+    e: np.ndarray         # (B, K+1, 2, 3) x_robot − x_hlip
+    pelvis_yaw: np.ndarray  # (B, K+1)
+
+
+def orbit_step(z0, t_ssp, t_dsp, v_fwd, v_lat, width, heading, swing):
+    """H-LIP orbit step in world planes: P1 along the heading (speed v_fwd), P2 across it
+    (speed v_lat, step width ``width`` [m]); ``swing`` 0 = left foot steps (+width)."""
+    p1 = hlip.p1_orbit(z0, t_ssp, t_dsp, v_fwd)
+    p2 = hlip.p2_orbit(z0, t_ssp, t_dsp, v_lat, width + v_lat * (t_ssp + t_dsp))
+    left = swing == 0
+    u_lat = np.where(left, p2.u_left, p2.u_right)
+    p_lat = np.where(left, p2.p_left, p2.p_right)
+    v_l = np.where(left, p2.v_left, p2.v_right)
+    c, s = np.cos(heading), np.sin(heading)
+    rot = lambda a, b: np.array([c * a - s * b, s * a + c * b])
+    return rot(p1.u, u_lat), rot(p1.p, p_lat), rot(p1.v, v_l)
+
+
+def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_dsp=0.1,
+                width=0.25, gain=None, pushes=None, batch_step=None, return_ticks=False):
+    """Closed loop without MPC: the H-LIP nominal follows P1 (sagittal) / P2 (lateral) orbit
+    steps in the heading frame, x_H,k+1 = A x_H,k + B u_H,k, heading θ_k = yaw_rate · k T;
+    the robot steps by the stepping law (deadbeat K by default).  One robot per entry of
+    ``v_fwd``, ``v_lat``, ``yaw_rate`` (arrays of equal length B, vmapped).
+    Returns (WalkLog, per-step tick logs if ``return_ticks``)."""
+    v_fwd, v_lat, yaw_rate = (np.atleast_1d(np.asarray(a, float)) for a in (v_fwd, v_lat, yaw_rate))
+    B = v_fwd.size
+    T = t_ssp + t_dsp
+    A, Bm = (np.asarray(a) for a in hlip.s2s_matrices(z0, t_ssp, t_dsp))
+    if gain is None:
+        k = np.asarray(hlip.deadbeat_gain(z0, t_ssp, t_dsp))
+        gain = np.tile(np.concatenate([[0.0], k]), (2, 1))
+    n_push = 1 if pushes is None else len(pushes)
+    params = Params(push_start=np.full((B, n_push), -1.0), push_end=np.full((B, n_push), -1.0),
+                    push_force=np.zeros((B, n_push, 2)), ticks=np.zeros((B, tick_budget(T))))
+    if pushes is not None:
+        for i, (t0, t1, fx, fy) in enumerate(pushes):
+            params.push_start[:, i], params.push_end[:, i] = t0, t1
+            params.push_force[:, i] = (fx, fy)
+    params = jax.tree.map(jnp.asarray, params)
+    x0 = jnp.zeros((2, 3))
+    states = [init(None, x0, None, None, jax.random.PRNGKey(i)) for i in range(B)]
+    state = jax.tree.map(lambda *a: jnp.stack(a), *states)
+    if batch_step is None:
+        batch_step = jax.jit(jax.vmap(step_with_log))
+    # nominal at SSP⁻_0: right stance ended, the left foot lands with u_H,0
+    stance = 1
+    heading = np.zeros(B)
+    xs, us = [], []
+    u_h, p_h, v_h = orbit_step(z0, t_ssp, t_dsp, v_fwd, v_lat, width, heading, 1 - stance)
+    x_h = np.stack([np.stack([np.zeros(B), p_h[0], v_h[0]], -1),
+                    np.stack([np.zeros(B), p_h[1], v_h[1]], -1)], 1)          # (B, 2, 3)
+    terms = jax.vmap(lambda d: model.robot_terms(cassie(), d))(state.d)
+    x_r0 = np.asarray(jax.vmap(_robot_x, in_axes=(0, None))(terms, stance)[0])
+    feet = np.asarray(jax.vmap(outputs.foot_centres)(terms))
+    u_r0 = feet[:, 0, :2] - feet[:, 1, :2]
+    log = dict(x_robot=[x_r0], u_robot=[u_r0], x_hlip=[x_h], u_hlip=[u_h.T], failed=[],
+               heading=[heading.copy()], pelvis_yaw=[np.zeros(B)])
+    ticks = []
+    for k in range(n_steps):
+        heading_next = yaw_rate * (k + 1) * T
+        x_h_next = x_h @ A.T + u_h.T[..., None] * Bm
+        u_h_next, _, _ = orbit_step(z0, t_ssp, t_dsp, v_fwd, v_lat, width, heading_next, stance)
+        cmd = StepCommand(t=jnp.full(B, k * T), stance=jnp.full(B, stance, jnp.int32),
+                          x_hlip=jnp.asarray(x_h), u_hlip=jnp.asarray(u_h.T),
+                          x_hlip_next=jnp.asarray(x_h_next), u_hlip_next=jnp.asarray(u_h_next.T),
+                          gain=jnp.broadcast_to(jnp.asarray(gain), (B, 2, 3)),
+                          heading=jnp.asarray(heading_next), t_ssp=jnp.full(B, t_ssp),
+                          t_dsp=jnp.full(B, t_dsp), z0=jnp.full(B, z0))
+        state, res, tlog = batch_step(params, state, cmd)
+        if return_ticks:
+            ticks.append(jax.tree.map(np.asarray, tlog))
+        x_h, u_h, stance, heading = x_h_next, u_h_next, 1 - stance, heading_next
+        log["x_robot"].append(np.asarray(res.x_robot))
+        log["u_robot"].append(np.asarray(res.u_robot))
+        log["x_hlip"].append(x_h)
+        log["u_hlip"].append(u_h.T)
+        log["failed"].append(np.asarray(res.failed))
+        log["heading"].append(heading.copy())
+        R = jax.vmap(lambda q: model.quat_to_mat(q / jnp.linalg.norm(q)))(state.d.qpos[:, 3:7])
+        log["pelvis_yaw"].append(np.arctan2(np.asarray(R[:, 1, 0]), np.asarray(R[:, 0, 0])))
+    out = {k: np.stack(v, axis=1) for k, v in log.items()}
+    xr, ur = out["x_robot"], out["u_robot"]
+    w = xr[:, 2:] - np.einsum("ij,bkpj->bkpi", A, xr[:, 1:-1]) - ur[:, 1:-1, :, None] * Bm
+    out["w"] = w
+    out["e"] = xr - out["x_hlip"]
+    out["failed"] = np.cumsum(out["failed"], axis=1) > 0
+    return WalkLog(**out), ticks
