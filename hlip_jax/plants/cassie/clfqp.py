@@ -91,7 +91,7 @@ def make_gains(omega, zeta=1.0, weight=None, w_tau=1e-4, w_delta=1e2, friction=0
                  friction=np.float64(friction))
 
 
-DEFAULT_SETTINGS = qp.Settings(eps_abs=1e-4, eps_rel=1e-4, max_iter=100, check_interval=25,
+DEFAULT_SETTINGS = qp.Settings(eps_abs=1e-4, eps_rel=1e-4, max_iter=150, check_interval=25,
                                adaptive_rho_interval=25, scaling=5)
 
 
@@ -167,8 +167,12 @@ def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
     """Build and solve the CLF-QP; ``warm`` = (x, y) from the previous tick (zeros at start)."""
     prob = build(meas, des, cond, contact, tau_min, tau_max, gains)
     sol = qp.solve(prob.P, prob.q, prob.A, prob.l, prob.u, settings=settings, warm_start=warm)
-    x = jnp.where(jnp.all(jnp.isfinite(sol.x)), sol.x, jnp.zeros_like(sol.x))
-    y = jnp.where(jnp.all(jnp.isfinite(sol.y)), sol.y, jnp.zeros_like(sol.y))
+    # a problem the ADMM budget did not solve (typically infeasible contact rows at an impact)
+    # keeps the previous tick's torques instead of an unconverged iterate
+    ok = ((sol.status == qp.SOLVED) | (sol.status == qp.SOLVED_INACCURATE)) & jnp.all(
+        jnp.isfinite(sol.x)) & jnp.all(jnp.isfinite(sol.y))
+    x = jnp.where(ok, sol.x, warm[0])
+    y = jnp.where(ok, sol.y, warm[1])
     nu = prob.P.shape[0] - 1
     tau = jnp.clip(x[:nu], tau_min, tau_max)
     return Result(tau=tau, delta=x[nu], V=prob.V, Vdot=prob.Vdot_free + prob.LgV_A @ tau,

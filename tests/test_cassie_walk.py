@@ -1,0 +1,119 @@
+"""Tests of the Cassie walking plant: trajectories and stepping-law pieces (closed forms, finite
+differences), the config → params path, and a short walk on MJX (slow)."""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hlip_jax import hlip
+from hlip_jax.config import DisturbanceConfig, HLIPConfig, PushConfig, ScenarioConfig
+from hlip_jax.plants.base import StepCommand
+from hlip_jax.plants.cassie import outputs, plant
+
+Z0, TS, TD = 0.85, 0.25, 0.1
+
+
+def _cmd(x, u, u_next):
+    A, B = hlip.s2s_matrices(Z0, TS, TD)
+    x = jnp.asarray(x)
+    x_next = x @ A.T + jnp.asarray(u)[:, None] * B
+    return StepCommand(t=jnp.zeros(()), stance=jnp.int32(1), x_hlip=x, u_hlip=jnp.asarray(u),
+                       x_hlip_next=x_next, u_hlip_next=jnp.asarray(u_next), gain=jnp.zeros((2, 3)),
+                       heading=jnp.zeros(()), t_ssp=jnp.asarray(TS), t_dsp=jnp.asarray(TD),
+                       z0=jnp.asarray(Z0))
+
+
+def test_hlip_phase_state_ends_at_next_preimpact():
+    cmd = _cmd([[0.1, 0.05, 0.4], [-0.2, 0.11, 0.2]], [0.2, 0.25], [0.2, -0.25])
+    # the H-LIP at the end of this step's SSP is the closed loop's x_H,k+1 = A x_H,k + B u_H,k
+    # (closed-form flows on both sides; float64 round-off only)
+    np.testing.assert_allclose(plant._hlip_at(cmd, TS), cmd.x_hlip_next, atol=1e-12)
+    # at SSP⁺ it is the DSP flow with the foot switched (p⁺ = p + v T_D − u, c continuous)
+    x0 = plant._hlip_at(cmd, 0.0)
+    xd = plant._hlip_dsp(cmd, TD)
+    np.testing.assert_allclose(x0[:, 1], xd[:, 1] - cmd.u_hlip, atol=1e-12)
+    np.testing.assert_allclose(x0[:, 0], xd[:, 0], atol=1e-12)
+
+
+def test_error_flow_to_impact_is_the_lip_flow():
+    x = jnp.array([[0.3, 0.04, 0.3], [0.1, -0.1, 0.25]])
+    tau = 0.13
+    got = plant._flow_to_impact(x, tau, Z0)
+    lam = np.sqrt(hlip.GRAVITY / Z0)
+    p = np.asarray(x[:, 1]) * np.cosh(lam * tau) + np.asarray(x[:, 2]) * np.sinh(lam * tau) / lam
+    v = np.asarray(x[:, 1]) * lam * np.sinh(lam * tau) + np.asarray(x[:, 2]) * np.cosh(lam * tau)
+    np.testing.assert_allclose(got[:, 1], p, rtol=1e-12)
+    np.testing.assert_allclose(got[:, 2], v, rtol=1e-12)
+    np.testing.assert_allclose(got[:, 0] - got[:, 1], x[:, 0] - x[:, 1], atol=1e-12)
+    # linear: the flow of a difference is the difference of the flows
+    y = jnp.array([[0.0, 0.02, 0.1], [0.0, 0.07, -0.1]])
+    np.testing.assert_allclose(plant._flow_to_impact(x - y, tau, Z0),
+                               plant._flow_to_impact(x, tau, Z0) - plant._flow_to_impact(y, tau, Z0),
+                               atol=1e-12)
+
+
+def test_swing_profile_and_blend():
+    h, s = 0.08, 0.01
+    f = lambda t: outputs.swing_height(t, TS, h, s)
+    assert abs(float(f(0.0))) < 1e-15
+    np.testing.assert_allclose(float(f(TS / 2)), h - s / 2, atol=1e-12)   # apex minus half the strike
+    np.testing.assert_allclose(float(f(TS)), -s, atol=1e-12)
+    # derivatives by nested jvp vs central differences (step 1e-5 s: error ~1e-9 relative)
+    for t in (0.03, 0.11, 0.2):
+        v, d1, d2 = outputs.with_derivatives(f, jnp.asarray(t))
+        e = 1e-5
+        np.testing.assert_allclose(float(d1), (float(f(t + e)) - float(f(t - e))) / (2 * e), rtol=1e-6)
+        np.testing.assert_allclose(float(d2), (float(f(t + e)) - 2 * float(v) + float(f(t - e))) / e**2,
+                                   rtol=1e-4, atol=1e-3)
+    # lift-off with zero velocity; c(t): 0 → 1 reached at REACH·T_SSP, zero slope at both ends
+    assert abs(float(outputs.with_derivatives(f, jnp.asarray(0.0))[1])) < 1e-12
+    c = lambda t: outputs.blend(t, TS, 0.8)
+    assert float(c(0.0)) == 0.0 and float(c(0.8 * TS)) == 1.0 and float(c(TS)) == 1.0
+    for t in (0.0, 0.8 * TS):
+        assert abs(float(outputs.with_derivatives(c, jnp.asarray(t))[1])) < 1e-9
+
+
+def test_orbit_steps_are_hlip_orbits():
+    u, p, v = plant.orbit_step(Z0, TS, TD, 0.5, 0.0, 0.25, np.zeros(1), 0)
+    p1 = hlip.p1_orbit(Z0, TS, TD, 0.5)
+    p2 = hlip.p2_orbit(Z0, TS, TD, 0.0, 0.25)
+    np.testing.assert_allclose([u[0, 0], p[0, 0], v[0, 0]], [p1.u, p1.p, p1.v], rtol=1e-12)
+    np.testing.assert_allclose([u[1, 0], p[1, 0], v[1, 0]], [p2.u_left, p2.p_left, p2.v_left], rtol=1e-12)
+    # rotated by the heading
+    u90, _, _ = plant.orbit_step(Z0, TS, TD, 0.5, 0.0, 0.25, np.full(1, np.pi / 2), 0)
+    np.testing.assert_allclose(u90[:, 0], [-u[1, 0], u[0, 0]], atol=1e-12)
+
+
+def test_make_params_pushes_and_validation():
+    cfg = ScenarioConfig(plant="cassie", hlip=HLIPConfig(t_ssp=0.3, t_dsp=0.1),
+                         disturbance=DisturbanceConfig(pushes=(PushConfig(time=1.0, duration=0.2,
+                                                                          force=50.0, direction=90.0),)))
+    p = plant.make_params(cfg, 2)
+    np.testing.assert_allclose(p.push_force[0], [0.0, 50.0], atol=1e-12)
+    assert p.push_start[0] == 1.0 and abs(p.push_end[0] - 1.2) < 1e-12 and p.push_start[1] < 0
+    assert p.ticks.shape == (400,)
+    assert plant.tick_budget(0.45) == 500
+    with pytest.raises(ValueError, match="pushes"):
+        plant.make_params(cfg, 0)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1200)
+def test_short_walk_on_mjx():
+    """Two robots (in place, 0.5 m/s forward) walk 3 steps: no fall, finite S2S data, steps of
+    the right sign, the forward one moves forward."""
+    A2, B2 = hlip.s2s_matrices(Z0, TS, TD, with_position=False)
+    k = np.asarray(hlip.lqr_gain(A2, B2, jnp.diag(jnp.array([1.0, 1.0])), jnp.array(2.0)))
+    gain = np.tile(np.concatenate([[0.0], k]), (2, 1))
+    log, _ = plant.walk_orbits([0.0, 0.5], [0.0, 0.0], [0.0, 0.0], 3, z0=Z0, t_ssp=TS, t_dsp=TD,
+                               gain=gain)
+    assert not log.failed.any(), log.failed
+    assert np.all(np.isfinite(log.x_robot)) and np.all(np.isfinite(log.w))
+    # lateral steps alternate: right foot (u_y < 0) at SSP⁻_1, left (u_y > 0) at SSP⁻_2, ...
+    assert np.all(log.u_robot[:, 1, 1] < 0) and np.all(log.u_robot[:, 2, 1] > 0)
+    assert log.x_robot[1, -1, 0, 0] - log.x_robot[1, 0, 0, 0] > 0.2      # 0.5 m/s robot moved
+    assert abs(log.x_robot[0, -1, 0, 0] - log.x_robot[0, 0, 0, 0]) < 0.1  # in place stayed
