@@ -75,6 +75,8 @@ def main(argv=None):
     log, _ = plant.walk_orbits(vf, vl, yr, args.steps, z0=z0, t_ssp=ts, t_dsp=td, gain=gain,
                                batch_step=step_fn)
     t_run = time.time() - t0
+    print(f"compile {t_compile:.1f} s, run {t_run:.1f} s", flush=True)
+    np.savez(os.path.splitext(args.out)[0] + "_log.npz", **log._asdict())
     T = ts + td
     results = []
     for i, (name, f, s, y) in enumerate(CASES):
@@ -86,8 +88,9 @@ def main(argv=None):
             hd = log.heading[i, :n_ok + 1]
             d = c[-1] - c[1]                              # skip the start-up step
             dur = (n_ok - 1) * T
-            fwd = np.cos(hd[1:]) @ np.diff(c[1:, 0]) + np.sin(hd[1:]) @ np.diff(c[1:, 1])
-            side = -np.sin(hd[1:]) @ np.diff(c[1:, 0]) + np.cos(hd[1:]) @ np.diff(c[1:, 1])
+            h = hd[1:-1]                                  # heading over each interval
+            fwd = np.cos(h) @ np.diff(c[1:, 0]) + np.sin(h) @ np.diff(c[1:, 1])
+            side = -np.sin(h) @ np.diff(c[1:, 0]) + np.cos(h) @ np.diff(c[1:, 1])
             w = log.w[i, :n_ok - 1]
             e = log.e[i, :n_ok + 1]
             row.update(speed_forward=float(fwd / dur), speed_sideways=float(side / dur),

@@ -30,7 +30,9 @@ QP over x = [τ (nu), δ]:
 
 with μ_PD = −k_p e − k_d ė the CLF's own LQR input (the tracking term keeps the QP strictly
 convex and the torque near the LQR's; the CLF row is the guarantee), solved by
-:func:`hlip_jax.qp.solve` warm-started from the previous tick.
+:func:`hlip_jax.qp.solve` warm-started from the previous tick; a tick whose QP is not solved
+within the iteration budget (typically infeasible contact rows at an impact) keeps the previous
+tick's torques.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hlip_jax import qp
-from hlip_jax.plants.cassie import dynamics, model, outputs
+from hlip_jax.plants.cassie import dynamics, outputs
 
 N_SITES = 4
 N_FRICTION_ROWS = 5 * N_SITES

@@ -50,7 +50,8 @@ def canonical(cassie: model.Cassie, d: mjx.Data) -> mjx.Data:
 
 def control(cassie: model.Cassie, d: mjx.Data, des: outputs.Desired, contact, tau_min, tau_max,
             gains: clfqp.Gains, warm, settings=clfqp.DEFAULT_SETTINGS):
-    """CLF-QP torques at the state of ``d`` (its qpos, qvel). Returns (Result, Measured)."""
+    """CLF-QP torques at the state of ``d`` (its qpos, qvel).
+    Returns (clfqp.Result, outputs.Measured, model.RobotTerms)."""
     terms = model.robot_terms(cassie, d)
     meas = outputs.measure(terms, d.qvel, cassie.index.root_dof)
     cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie))

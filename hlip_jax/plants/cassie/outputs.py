@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from hlip_jax.plants.cassie import model
 
@@ -123,7 +124,7 @@ def rot_z(yaw):
 # ----------------------------------------------------------------------------- standing
 
 
-STAND_MASK = jnp.array([1, 1, 1, 1, 1, 1] + [0] * 10, dtype=float)
+STAND_MASK = np.array([1, 1, 1, 1, 1, 1] + [0] * 10, dtype=float)
 
 
 def stand_desired(com_height, com_xy, yaw, dtype=jnp.float64) -> Desired:
@@ -131,7 +132,7 @@ def stand_desired(com_height, com_xy, yaw, dtype=jnp.float64) -> Desired:
     y = jnp.zeros(N_OUT, dtype).at[COM_Z].set(com_height).at[COM_XY].set(com_xy)
     z = jnp.zeros(N_OUT, dtype)
     return Desired(y=y, ydot=z, yddot=z, R=rot_z(jnp.asarray(yaw, dtype)),
-                   mask=STAND_MASK.astype(dtype))
+                   mask=jnp.asarray(STAND_MASK, dtype))
 
 
 # ----------------------------------------------------------------------------- walking

@@ -37,6 +37,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 from mujoco import mjx
 
@@ -127,8 +128,6 @@ def init(params: Params, x0, u0, stance0, key) -> State:
     del u0, stance0
     c = cassie()
     m = c.mj_model
-    import mujoco
-
     dm = mujoco.MjData(m)
     mujoco.mj_resetDataKeyframe(m, dm, c.index.stand_key)
     mujoco.mj_forward(m, dm)
@@ -270,7 +269,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
         fz = jnp.where(in_dsp, lz, hz)
         f_vel = jnp.where(in_dsp, jnp.array([0.0, 0.0, 1.0]) * lzd, jnp.stack([vxy[0], vxy[1], hzd]))
         f_acc = jnp.where(in_dsp, jnp.array([0.0, 0.0, 1.0]) * lzdd, jnp.stack([axy[0], axy[1], hzdd]))
-        fyaw = jnp.where(in_dsp, cmd.heading * 0 + yaw_from, (1 - cb) * carry.sw_yaw0 + cb * cmd.heading)
+        fyaw = jnp.where(in_dsp, yaw_from, (1 - cb) * carry.sw_yaw0 + cb * cmd.heading)
         fyaw_d = jnp.where(in_dsp, 0.0, cdot * outputs.wrap(cmd.heading - carry.sw_yaw0))
         # the moving foot: in DSP the landing foot (= new stance), in SSP the swing foot
         mv = jnp.where(in_dsp, new_st, sw)
