@@ -132,9 +132,13 @@ def lqr_gain(A, B, Q, R):
     cost Σ xᵀQx + uᵀRu.  B may be a vector (single input) or an n×m matrix; K then has
     shape (n,) or (m, n).  Q, R are traced, so gain weights can be swept.
     """
+    A = jnp.asarray(A)
+    A = A.astype(jnp.result_type(A.dtype, float))
+    B = jnp.asarray(B, A.dtype)
+    Q = jnp.asarray(Q, A.dtype)
     single = B.ndim == 1
     Bm = B[:, None] if single else B
-    Rm = jnp.atleast_2d(R).astype(A.dtype)
+    Rm = jnp.atleast_2d(jnp.asarray(R, A.dtype))
     G = Bm @ jnp.linalg.solve(Rm, Bm.T)
     P = solve_dare(A, Q, G)
     K = -jnp.linalg.solve(Rm + Bm.T @ P @ Bm, Bm.T @ P @ A)
