@@ -30,9 +30,9 @@ QP over x = [τ (nu), δ]:
 
 with μ_PD = −k_p e − k_d ė the CLF's own LQR input (the tracking term keeps the QP strictly
 convex and the torque near the LQR's; the CLF row is the guarantee), solved by
-:func:`hlip_jax.qp.solve` warm-started from the previous tick; a tick whose QP is not solved
-within the iteration budget (typically infeasible contact rows at an impact) keeps the previous
-tick's torques.
+:func:`hlip_jax.qp.solve` warm-started from the previous tick; with ``fallback`` a tick whose QP is not
+solved within the iteration budget (typically infeasible contact rows at an impact) keeps the
+previous tick's torques, otherwise the last iterate is used (clipped to the limits).
 """
 
 from __future__ import annotations
@@ -165,14 +165,18 @@ class Result(NamedTuple):
 
 
 def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
-          settings: qp.Settings = DEFAULT_SETTINGS) -> Result:
-    """Build and solve the CLF-QP; ``warm`` = (x, y) from the previous tick (zeros at start)."""
+          settings: qp.Settings = DEFAULT_SETTINGS, fallback: bool = False) -> Result:
+    """Build and solve the CLF-QP; ``warm`` = (x, y) from the previous tick (zeros at start).
+
+    ``fallback`` (static): when the QP is not solved, return the previous tick's solution
+    (used while walking; standing push recovery does better with the clipped last iterate)."""
     prob = build(meas, des, cond, contact, tau_min, tau_max, gains)
     sol = qp.solve(prob.P, prob.q, prob.A, prob.l, prob.u, settings=settings, warm_start=warm)
     # a problem the ADMM budget did not solve (typically infeasible contact rows at an impact)
     # keeps the previous tick's torques instead of an unconverged iterate
-    ok = ((sol.status == qp.SOLVED) | (sol.status == qp.SOLVED_INACCURATE)) & jnp.all(
-        jnp.isfinite(sol.x)) & jnp.all(jnp.isfinite(sol.y))
+    finite = jnp.all(jnp.isfinite(sol.x)) & jnp.all(jnp.isfinite(sol.y))
+    solved = (sol.status == qp.SOLVED) | (sol.status == qp.SOLVED_INACCURATE)
+    ok = finite & solved if fallback else finite
     x = jnp.where(ok, sol.x, warm[0])
     y = jnp.where(ok, sol.y, warm[1])
     nu = prob.P.shape[0] - 1

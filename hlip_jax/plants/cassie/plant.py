@@ -306,7 +306,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
             lo = lo.at[foot_motor[s]].multiply(lim)
             hi = hi.at[foot_motor[s]].multiply(lim)
         cond = dynamics.condense(terms, c.actuation, contact, springs)
-        res = clfqp.solve(meas, des, cond, contact, lo, hi, WALK_GAINS, carry.warm)
+        res = clfqp.solve(meas, des, cond, contact, lo, hi, WALK_GAINS, carry.warm, fallback=True)
         # ---- push and physics
         t_abs = state.time + tau_t
         on = (t_abs >= params.push_start) & (t_abs < params.push_end)
