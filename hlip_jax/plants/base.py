@@ -25,6 +25,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax
+import numpy as np
 
 
 class StepCommand(NamedTuple):
@@ -47,3 +48,20 @@ class StepResult(NamedTuple):
     x_robot: jax.Array      # (2, 3) [c, p, v] per plane (p relative to the stance foot of the SSP)
     u_robot: jax.Array      # (2,) step placed at SSP⁻_{k+1} [m]
     failed: jax.Array       # bool: the robot fell or its state is not finite
+
+
+def push_table(pushes, n_push: int):
+    """Fixed-size arrays of a scenario's pushes (:class:`hlip_jax.config.PushConfig`):
+    start and end times (n_push,) [s] (unused slots −1, never active) and the horizontal force
+    (n_push, 2) [N] in world x, y."""
+    pushes = list(pushes)
+    if len(pushes) > n_push:
+        raise ValueError(f"disturbance.pushes: {len(pushes)} pushes, at most {n_push} allowed")
+    start = np.full(n_push, -1.0)
+    end = np.full(n_push, -1.0)
+    force = np.zeros((n_push, 2))
+    for i, p in enumerate(pushes):
+        start[i], end[i] = p.time, p.time + p.duration
+        a = np.deg2rad(p.direction)
+        force[i] = p.force * np.array([np.cos(a), np.sin(a)])
+    return start, end, force

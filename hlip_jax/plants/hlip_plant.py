@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hlip_jax.config import ScenarioConfig
-from hlip_jax.plants.base import StepCommand, StepResult
+from hlip_jax.plants.base import StepCommand, StepResult, push_table
 
 
 class Params(NamedTuple):
@@ -56,14 +56,8 @@ class State(NamedTuple):
 def make_params(cfg: ScenarioConfig, max_pushes: int) -> Params:
     """Per-scenario plant data; 0 in a mismatch field means "the planner's value"."""
     d, h = cfg.disturbance, cfg.hlip
-    pushes = list(d.pushes)
-    start = np.full(max_pushes, -1.0)
-    end = np.full(max_pushes, -1.0)
-    acc = np.zeros((max_pushes, 2))
-    for i, p in enumerate(pushes):
-        start[i], end[i] = p.time, p.time + p.duration
-        ang = np.deg2rad(p.direction)
-        acc[i] = p.force / d.mass * np.array([np.cos(ang), np.sin(ang)])
+    start, end, force = push_table(d.pushes, max_pushes)
+    acc = force / d.mass
     return Params(
         z0=np.float64(d.z0 or h.z0), t_ssp=np.float64(d.t_ssp or h.t_ssp),
         t_dsp=np.float64(d.t_dsp if d.t_dsp else h.t_dsp), g=np.float64(h.g),

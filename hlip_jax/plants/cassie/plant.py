@@ -42,7 +42,7 @@ import numpy as np
 from mujoco import mjx
 
 from hlip_jax import hlip
-from hlip_jax.plants.base import StepCommand, StepResult
+from hlip_jax.plants.base import StepCommand, StepResult, push_table
 from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs
 
 FALL_HEIGHT = 0.55        # [m] pelvis height below which the robot has fallen
@@ -102,16 +102,7 @@ def tick_budget(t_step: float) -> int:
 def make_params(cfg, n_push: int) -> Params:
     """Per-scenario plant data from a :class:`hlip_jax.config.ScenarioConfig`; pushes act on
     the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`)."""
-    pushes = list(cfg.disturbance.pushes)
-    if len(pushes) > n_push:
-        raise ValueError(f"disturbance.pushes: {len(pushes)} pushes, at most {n_push} allowed")
-    start = np.full(n_push, -1.0)
-    end = np.full(n_push, -1.0)
-    force = np.zeros((n_push, 2))
-    for i, p in enumerate(pushes):
-        start[i], end[i] = p.time, p.time + p.duration
-        a = np.deg2rad(p.direction)
-        force[i] = p.force * np.array([np.cos(a), np.sin(a)])
+    start, end, force = push_table(cfg.disturbance.pushes, n_push)
     ticks = np.zeros(tick_budget(cfg.hlip.t_ssp + cfg.hlip.t_dsp))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks)
 
