@@ -67,14 +67,7 @@ def main(argv=None):
 
         d = model.make_batch(cassie, B, jax.random.PRNGKey(0))
 
-        @jax.jit
-        def physics_only(d):
-            def one(d):
-                def tick(d, _):
-                    return control.physics(cassie, d, jnp.zeros(cassie.index.nu, d.qpos.dtype),
-                                           jnp.zeros(3, d.qpos.dtype)), None
-                return jax.lax.scan(tick, d, None, length=ticks)[0]
-            return jax.vmap(one)(d)
+        physics_only = jax.jit(jax.vmap(lambda d: control.zero_torque_rollout(cassie, d, ticks)))
 
         jax.block_until_ready(physics_only(d))
         t3 = time.perf_counter()

@@ -57,14 +57,7 @@ def main(argv=None):
                 return control.stand_rollout(cassie, d, tg, args.chunk, warm=w, t0=t)
             return jax.vmap(one)(d, warm, t0, target)
 
-        @jax.jit
-        def physics_only(d):
-            def one(d):
-                def tick(d, _):
-                    return control.physics(cassie, d, jnp.zeros(cassie.index.nu, d.qpos.dtype),
-                                           jnp.zeros(3, d.qpos.dtype)), None
-                return jax.lax.scan(tick, d, None, length=args.chunk)[0]
-            return jax.vmap(one)(d)
+        physics_only = jax.jit(jax.vmap(lambda d: control.zero_torque_rollout(cassie, d, args.chunk)))
 
         t0 = time.perf_counter()
         out = chunk(d, warm, jnp.zeros(B, com.dtype), target)

@@ -69,6 +69,18 @@ def physics(cassie: model.Cassie, d: mjx.Data, ctrl, force) -> mjx.Data:
     return d
 
 
+def zero_torque_rollout(cassie: model.Cassie, d: mjx.Data, n_ticks: int) -> mjx.Data:
+    """``n_ticks`` control ticks of physics alone (zero motor torque, no push): the
+    physics-only reference the benchmarks compare the controlled loops against."""
+    ctrl = jnp.zeros(cassie.index.nu, d.qpos.dtype)
+    force = jnp.zeros(3, d.qpos.dtype)
+
+    def tick(d, _):
+        return physics(cassie, d, ctrl, force), None
+
+    return jax.lax.scan(tick, d, None, length=n_ticks)[0]
+
+
 def warm_zeros(cassie: model.Cassie, dtype):
     nu = cassie.index.nu
     return (jnp.zeros(nu + 1, dtype), jnp.zeros(clfqp.n_rows(nu), dtype))
