@@ -21,24 +21,19 @@ import os
 import sys
 import time
 
-CASES = (  # name, forward [m/s], sideways [m/s], yaw rate [deg/s]
-    ("in_place", 0.0, 0.0, 0.0),
-    ("fwd_0.2", 0.2, 0.0, 0.0),
-    ("fwd_0.5", 0.5, 0.0, 0.0),
-    ("fwd_0.8", 0.8, 0.0, 0.0),
-    ("side_0.3", 0.0, 0.3, 0.0),
-    ("turn_30dps", 0.0, 0.0, 30.0),
-)
-
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", choices=("cpu", "gpu"), default="cpu")
     ap.add_argument("--steps", type=int, default=8, help="walking steps per robot (≥ 2)")
-    ap.add_argument("--t-ssp", type=float, default=0.25)
-    ap.add_argument("--t-dsp", type=float, default=0.1)
+    ap.add_argument("--t-ssp", type=float, default=0.26)
+    ap.add_argument("--t-dsp", type=float, default=0.02)
     ap.add_argument("--z0", type=float, default=0.85)
-    ap.add_argument("--gain", choices=("lqr", "deadbeat"), default="lqr")
+    ap.add_argument("--width", type=float, default=0.15, help="nominal step width [m]")
+    ap.add_argument("--gain", choices=("lqr", "deadbeat"), default="lqr",
+                    help="3-state gain on [c, p, v]: LQR Q = diag(0.05, 1, 0.25), R = 4, or deadbeat")
+    ap.add_argument("--tasks", default="all",
+                    help="comma-separated subset of plant.WALK_TASKS (default all)")
     ap.add_argument("--out", default="cassie_walk_bench.json")
     args = ap.parse_args(argv)
     if args.steps < 2:
@@ -58,55 +53,62 @@ def main(argv=None):
 
     z0, ts, td = args.z0, args.t_ssp, args.t_dsp
     if args.gain == "lqr":
-        A2, B2 = hlip.s2s_matrices(z0, ts, td, with_position=False)
-        k = np.asarray(hlip.lqr_gain(A2, B2, jnp.diag(jnp.array([1.0, 1.0])), jnp.array(2.0)))
+        A3, B3 = hlip.s2s_matrices(z0, ts, td)
+        k = np.asarray(hlip.lqr_gain(A3, B3, jnp.diag(jnp.array([0.05, 1.0, 0.25])), jnp.array(4.0)))
     else:
-        k = np.asarray(hlip.deadbeat_gain(z0, ts, td))
-    gain = np.tile(np.concatenate([[0.0], k]), (2, 1))
-    vf = np.array([c[1] for c in CASES])
-    vl = np.array([c[2] for c in CASES])
-    yr = np.deg2rad([c[3] for c in CASES])
+        k = np.asarray(hlip.deadbeat_gain(z0, ts, td, with_position=True))
+    gain = np.tile(k, (2, 1))
+    CASES = plant.WALK_TASKS
+    cases = [c for c in CASES if args.tasks == "all" or c[0] in args.tasks.split(",")]
+    if not cases:
+        ap.error(f"--tasks: none of {args.tasks!r} is one of {[c[0] for c in CASES]}")
+    vf = np.array([c[1] for c in cases])
+    vl = np.array([c[2] for c in cases])
+    yr = np.deg2rad([c[3] for c in cases])
     step_fn = jax.jit(jax.vmap(plant.step_with_log))
     # compile (and warm up) on a 1-step run, then time the real one
     t0 = time.time()
-    plant.walk_orbits(vf, vl, yr, 1, z0=z0, t_ssp=ts, t_dsp=td, gain=gain, batch_step=step_fn)
+    plant.walk_orbits(vf, vl, yr, 1, z0=z0, t_ssp=ts, t_dsp=td, width=args.width, gain=gain,
+                      batch_step=step_fn)
     t_compile = time.time() - t0
     t0 = time.time()
-    log, _ = plant.walk_orbits(vf, vl, yr, args.steps, z0=z0, t_ssp=ts, t_dsp=td, gain=gain,
-                               batch_step=step_fn)
+    log, _ = plant.walk_orbits(vf, vl, yr, args.steps, z0=z0, t_ssp=ts, t_dsp=td,
+                               width=args.width, gain=gain, batch_step=step_fn)
     t_run = time.time() - t0
     print(f"compile {t_compile:.1f} s, run {t_run:.1f} s", flush=True)
     np.savez(os.path.splitext(args.out)[0] + "_log.npz", **log._asdict())
     T = ts + td
     results = []
-    for i, (name, f, s, y) in enumerate(CASES):
+    for i, (name, f, s, y) in enumerate(cases):
         failed = log.failed[i]
         n_ok = int(np.argmax(failed)) if failed.any() else args.steps
         row = dict(case=name, cmd_forward=f, cmd_sideways=s, cmd_yaw_rate_deg=y, steps_walked=n_ok)
         if n_ok >= 2:
             c = log.x_robot[i, :n_ok + 1, :, 0]
             hd = log.heading[i, :n_ok + 1]
-            d = c[-1] - c[1]                              # skip the start-up step
-            dur = (n_ok - 1) * T
-            h = hd[1:-1]                                  # heading over each interval
-            fwd = np.cos(h) @ np.diff(c[1:, 0]) + np.sin(h) @ np.diff(c[1:, 1])
-            side = -np.sin(h) @ np.diff(c[1:, 0]) + np.cos(h) @ np.diff(c[1:, 1])
+            # average over the last 10 s walked (all but the start-up step if shorter)
+            lo = max(1, n_ok - int(round(10.0 / T)))
+            d = c[-1] - c[lo]
+            dur = (n_ok - lo) * T
+            h = hd[lo:-1]                                 # heading over each interval
+            fwd = np.cos(h) @ np.diff(c[lo:, 0]) + np.sin(h) @ np.diff(c[lo:, 1])
+            side = -np.sin(h) @ np.diff(c[lo:, 0]) + np.cos(h) @ np.diff(c[lo:, 1])
             w = log.w[i, :n_ok - 1]
             e = log.e[i, :n_ok + 1]
-            row.update(speed_forward=float(fwd / dur), speed_sideways=float(side / dur),
+            row.update(window_s=dur, speed_forward=float(fwd / dur), speed_sideways=float(side / dur),
                        displacement=d.tolist(),
                        yaw_rate_deg=float(np.rad2deg(np.unwrap(log.pelvis_yaw[i, :n_ok + 1])[-1]
-                                                     - log.pelvis_yaw[i, 1]) / dur),
+                                                     - np.unwrap(log.pelvis_yaw[i, :n_ok + 1])[lo]) / dur),
                        w_max_abs={pl: np.abs(w[:, j, 1:]).max(0).tolist() for j, pl in enumerate("xy")},
                        w_std={pl: w[:, j, 1:].std(0).tolist() for j, pl in enumerate("xy")},
                        e_max_abs={pl: np.abs(e[:, j, 1:]).max(0).tolist() for j, pl in enumerate("xy")})
         results.append(row)
         print(json.dumps(row))
     summary = dict(device=args.device, backend=jax.default_backend(), steps=args.steps,
-                   robots=len(CASES), t_ssp=ts, t_dsp=td, z0=z0, gain=args.gain,
-                   gain_pv=k.tolist(), compile_s=t_compile, run_s=t_run,
-                   robot_steps_per_s=len(CASES) * args.steps / t_run,
-                   sim_seconds_per_wall_second=len(CASES) * args.steps * T / t_run,
+                   robots=len(cases), t_ssp=ts, t_dsp=td, z0=z0, gain=args.gain,
+                   gain_cpv=k.tolist(), compile_s=t_compile, run_s=t_run,
+                   robot_steps_per_s=len(cases) * args.steps / t_run,
+                   sim_seconds_per_wall_second=len(cases) * args.steps * T / t_run,
                    cases=results)
     print(json.dumps({k: v for k, v in summary.items() if k != "cases"}))
     with open(args.out, "w") as fh:

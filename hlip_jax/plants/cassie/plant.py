@@ -48,23 +48,9 @@ from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs
 FALL_HEIGHT = 0.55        # [m] pelvis height below which the robot has fallen
 FALL_TILT = 0.7           # [rad] pelvis roll or pitch beyond which it has fallen
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
-STEP_LIMIT_X = 0.6        # [m] |u_x| clip of the swing target
-STEP_WIDTH = (0.1, 0.5)   # [m] (min, max) |u_y| of the swing target, sign by swing side
 COM_HEIGHT = (0.65, 0.9)  # [m] allowed COM height targets (z0 is clipped to it)
-CLEARANCE = 0.08          # [m] swing apex
-STRIKE = 0.01             # [m] swing target depth below the ground at T_SSP
-REACH = 0.8               # c(t) reaches 1 at REACH · T_SSP
-FREEZE = 0.85             # u_des is re-evaluated until FREEZE · T_SSP, then held
-#: torque budget of a foot motor while its foot is on the ground, as a fraction of its limit:
-#: 0 makes the stance foot a passive pivot (the H-LIP's point foot)
-PASSIVE_FOOT_FRACTION = 1.0
-#: 1 enables the low-gain COM tracking of the H-LIP trajectory through the ankles (rows 4, 5)
-ANKLE_ASSIST = 1.0
-
-#                   rot x3   z   cxy   left foot    right foot   slopes  yaws
-WALK_OMEGA = np.array([8, 8, 8, 8, 3, 3, 15, 15, 15, 15, 15, 15, 15, 15, 10, 10], float)
-WALK_WEIGHT = np.array([1, 1, 1, 1, 0.3, 0.3] + [1] * 10, float)
-WALK_GAINS = clfqp.make_gains(WALK_OMEGA, weight=WALK_WEIGHT)
+#: the gait's tunable parameters and their defaults live in :class:`hlip_jax.config.CassieConfig`
+#: and reach the controller as per-scenario data (:class:`Gait`)
 
 _CASSIE = None
 
@@ -77,11 +63,57 @@ def cassie() -> model.Cassie:
     return _CASSIE
 
 
+class Gait(NamedTuple):
+    """Per-scenario gait parameters (scalars; see :class:`hlip_jax.config.CassieConfig` for
+    meanings and units) and the CLF-QP gains they imply."""
+    clearance: jax.Array
+    strike: jax.Array
+    reach: jax.Array
+    freeze: jax.Array
+    early_contact: jax.Array
+    step_length_max: jax.Array
+    step_width_min: jax.Array
+    step_width_max: jax.Array
+    foot_torque: jax.Array
+    assist_ssp: jax.Array
+    assist_dsp: jax.Array
+    gains: clfqp.Gains
+
+
+_GAIT_CACHE: dict = {}
+
+
+def make_gait(cfg=None) -> Gait:
+    """:class:`Gait` (numpy) of a :class:`hlip_jax.config.CassieConfig` (defaults if None).
+
+    Output frequencies per row of :mod:`outputs`: pelvis orientation (0..2) ``omega_pelvis``,
+    COM height (3) ``omega_height``, COM x, y (4, 5) ``omega_com``, both feet's position and
+    sole slope (6..13) ``omega_swing``, foot yaw (14, 15) ``omega_yaw``; QP weights 1 except
+    the pelvis rows (``weight_pelvis``) and the COM x, y rows (``weight_com``)."""
+    from hlip_jax.config import CassieConfig
+
+    cfg = CassieConfig() if cfg is None else cfg
+    if cfg in _GAIT_CACHE:
+        return _GAIT_CACHE[cfg]
+    omega = np.array([cfg.omega_pelvis] * 3 + [cfg.omega_height] + [cfg.omega_com] * 2
+                     + [cfg.omega_swing] * 8 + [cfg.omega_yaw] * 2, float)
+    weight = np.array([cfg.weight_pelvis] * 3 + [1.0] + [cfg.weight_com] * 2 + [1.0] * 10, float)
+    f = np.float64
+    g = Gait(clearance=f(cfg.clearance), strike=f(cfg.strike), reach=f(cfg.reach),
+             freeze=f(cfg.freeze), early_contact=f(cfg.early_contact),
+             step_length_max=f(cfg.step_length_max), step_width_min=f(cfg.step_width_min),
+             step_width_max=f(cfg.step_width_max), foot_torque=f(cfg.foot_torque),
+             assist_ssp=f(cfg.assist_ssp), assist_dsp=f(cfg.assist_dsp), gains=clfqp.make_gains(omega, weight=weight))
+    _GAIT_CACHE[cfg] = g
+    return g
+
+
 class Params(NamedTuple):
     push_start: jax.Array    # (P,) [s]
     push_end: jax.Array      # (P,) [s]
     push_force: jax.Array    # (P, 2) world x, y [N]
     ticks: jax.Array         # (n_ticks,) zeros: its length is the static tick budget per step
+    gait: Gait
 
 
 class State(NamedTuple):
@@ -104,7 +136,8 @@ def make_params(cfg, n_push: int) -> Params:
     the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`)."""
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
     ticks = np.zeros(tick_budget(cfg.hlip.t_ssp + cfg.hlip.t_dsp))
-    return Params(push_start=start, push_end=end, push_force=force, ticks=ticks)
+    return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,
+                  gait=make_gait(cfg.cassie))
 
 
 def _foot_xy(terms):
@@ -184,6 +217,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
     c = cassie()
     d0 = state.d
     dt = d0.qpos.dtype
+    gait = jax.tree.map(lambda a: jnp.asarray(a, dt), params.gait)
     ctrl = cassie().ctrl_range
     lo_all = jnp.asarray(ctrl[:, 0], dt)
     hi_all = jnp.asarray(ctrl[:, 1], dt)
@@ -222,7 +256,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
         side_of_site = jnp.array([0, 0, 1, 1])
         is_stance_site = side_of_site == new_st
         # landing foot in DSP, swing foot near the end of SSP: contact only when touching
-        late_ssp = ts > 0.75 * t_ssp
+        late_ssp = ts > gait.early_contact * t_ssp
         other_ok = jnp.where(in_dsp, touching, touching & late_ssp)
         contact = jnp.where(is_stance_site, True, other_ok).astype(dt)
         foot_contact = jnp.stack([contact[0] + contact[1] > 0, contact[2] + contact[3] > 0])
@@ -233,12 +267,17 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
         # the SSP: the step law's K is designed for pre-impact errors
         u_des = cmd.u_hlip_next + jnp.sum(
             cmd.gain * _flow_to_impact(x_r - x_h, t_ssp - jnp.minimum(ts, t_ssp), cmd.z0), axis=-1)
+        # step limits in the heading frame (length along, width across the path heading)
         sgn = jnp.where(sw == 0, 1.0, -1.0)
-        uy = sgn * jnp.clip(sgn * u_des[1], *STEP_WIDTH)
-        u_des = jnp.stack([jnp.clip(u_des[0], -STEP_LIMIT_X, STEP_LIMIT_X), uy])
-        u_des = jnp.where(ts < FREEZE * t_ssp, u_des, carry.u_last)
+        ch, sh = jnp.cos(cmd.heading), jnp.sin(cmd.heading)
+        u_al = ch * u_des[0] + sh * u_des[1]
+        u_ac = -sh * u_des[0] + ch * u_des[1]
+        u_al = jnp.clip(u_al, -gait.step_length_max, gait.step_length_max)
+        u_ac = sgn * jnp.clip(sgn * u_ac, gait.step_width_min, gait.step_width_max)
+        u_des = jnp.stack([ch * u_al - sh * u_ac, sh * u_al + ch * u_ac])
+        u_des = jnp.where(ts < gait.freeze * t_ssp, u_des, carry.u_last)
         # ---- desired outputs
-        cb, cdot, cddot = outputs.with_derivatives(lambda t: outputs.blend(t, t_ssp, REACH), ts)
+        cb, cdot, cddot = outputs.with_derivatives(lambda t: outputs.blend(t, t_ssp, gait.reach), ts)
         yaw_d = yaw_from + cb * dyaw
         R_d = outputs.rot_z(yaw_d)
         y = jnp.zeros(outputs.N_OUT, dt).at[outputs.COM_Z].set(z0)
@@ -251,10 +290,10 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
         vxy = cdot * (target_xy - start_xy)
         axy = cddot * (target_xy - start_xy)
         hz, hzd, hzdd = outputs.with_derivatives(
-            lambda t: outputs.swing_height(t, t_ssp, CLEARANCE, STRIKE), ts)
+            lambda t: outputs.swing_height(t, t_ssp, gait.clearance, gait.strike), ts)
         # landing foot in DSP (late touchdown): hold xy, keep reaching down
         lz, lzd, lzdd = outputs.with_derivatives(
-            lambda t: outputs.swing_height(t, t_ssp, CLEARANCE, STRIKE), t_ssp + tau_t)
+            lambda t: outputs.swing_height(t, t_ssp, gait.clearance, gait.strike), t_ssp + tau_t)
         fx = jnp.where(in_dsp, state.land_xy[0], sxy[0])
         fy = jnp.where(in_dsp, state.land_xy[1], sxy[1])
         fz = jnp.where(in_dsp, lz, hz)
@@ -273,18 +312,28 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
             y = y.at[outputs.FOOT_YAW[s]].set(jnp.where(on, fyaw, 0.0))
             yd = yd.at[outputs.FOOT_YAW[s]].set(jnp.where(on, fyaw_d, 0.0))
         # ankle assist: the COM follows the H-LIP's own trajectory (relative to the stance
-        # foot) with a soft low-gain output, in both planes in DSP, sagittally in SSP
+        # foot) with a soft output, in both directions in DSP, along the heading in SSP (the
+        # line foot has no authority across it); rows 4, 5 are expressed in the heading frame
         x_hd = _hlip_dsp(cmd, jnp.minimum(tau_t, t_dsp))
         p_h = jnp.where(in_dsp, x_hd[:, 1], x_h[:, 1])
         v_h = jnp.where(in_dsp, x_hd[:, 2], x_h[:, 2])
         a_h = jnp.where(in_dsp, 0.0, hlip.GRAVITY / cmd.z0 * x_h[:, 1])
         old_xy = jnp.where(cmd.stance == 0, feet0[0, :2], feet0[1, :2])
         ref_xy = jnp.where(in_dsp, old_xy, st_xy)
-        y = y.at[outputs.COM_XY].set(ref_xy + p_h)
-        yd = yd.at[outputs.COM_XY].set(v_h)
-        ydd = ydd.at[outputs.COM_XY].set(a_h)
+        Rh = R_d[:2, :2].T                                   # world → heading frame
+        y = y.at[outputs.COM_XY].set(Rh @ (ref_xy + p_h))
+        yd = yd.at[outputs.COM_XY].set(Rh @ v_h)
+        ydd = ydd.at[outputs.COM_XY].set(Rh @ a_h)
+        meas = meas._replace(y=meas.y.at[outputs.COM_XY].set(Rh @ meas.y[outputs.COM_XY]),
+                             ydot=meas.ydot.at[outputs.COM_XY].set(Rh @ meas.ydot[outputs.COM_XY]),
+                             J=meas.J.at[outputs.COM_XY].set(Rh @ meas.J[outputs.COM_XY]),
+                             jdqd=meas.jdqd.at[outputs.COM_XY].set(Rh @ meas.jdqd[outputs.COM_XY]))
         mask = jnp.zeros(outputs.N_OUT, dt).at[:4].set(1.0)
-        mask = mask.at[4].set(ANKLE_ASSIST).at[5].set(jnp.where(in_dsp, ANKLE_ASSIST, 0.0))
+        f_along = jnp.where(in_dsp, gait.assist_dsp, gait.assist_ssp)
+        f_across = jnp.where(in_dsp, gait.assist_dsp, 0.0)
+        mask = mask.at[4].set((f_along > 0).astype(dt)).at[5].set((f_across > 0).astype(dt))
+        gains = gait.gains._replace(weight=gait.gains.weight.at[4].multiply(f_along)
+                                    .at[5].multiply(f_across))
         for s in (0, 1):
             free = (mv == s) & ~foot_contact[s]
             rows = np.r_[np.arange(16)[outputs.FOOT_POS[s]], outputs.FOOT_SLOPE[s], outputs.FOOT_YAW[s]]
@@ -293,11 +342,11 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
         # ---- torque limits: a foot motor is passive while its foot is on the ground
         lo, hi = lo_all, hi_all
         for s in (0, 1):
-            lim = jnp.where(foot_contact[s], PASSIVE_FOOT_FRACTION, 1.0)
+            lim = jnp.where(foot_contact[s], gait.foot_torque, 1.0)
             lo = lo.at[foot_motor[s]].multiply(lim)
             hi = hi.at[foot_motor[s]].multiply(lim)
         cond = dynamics.condense(terms, c.actuation, contact, springs)
-        res = clfqp.solve(meas, des, cond, contact, lo, hi, WALK_GAINS, carry.warm, fallback=True)
+        res = clfqp.solve(meas, des, cond, contact, lo, hi, gains, carry.warm, fallback=True)
         # ---- push and physics
         t_abs = state.time + tau_t
         on = (t_abs >= params.push_start) & (t_abs < params.push_end)
@@ -313,7 +362,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
         sw_start = jnp.where(first_ssp, sw_pos, carry.sw_start)
         sw_yaw0 = jnp.where(first_ssp, sw_yaw, carry.sw_yaw0)
         # the target is frozen over the last part of the SSP (the foot is arriving)
-        u_last = jnp.where(active & ~in_dsp & (ts < FREEZE * t_ssp), u_des, carry.u_last)
+        u_last = jnp.where(active & ~in_dsp & (ts < gait.freeze * t_ssp), u_des, carry.u_last)
         fell = carry.fell | (active & _fell(d_next))
         log = TickLog(com=terms.com, feet=feet, tau=res.tau, V=res.V, contact=contact,
                       status=res.status)
@@ -346,6 +395,18 @@ def step(params: Params, state: State, cmd: StepCommand):
 # ----------------------------------------------------------------------------- orbit driver
 
 
+#: the walking tasks of the orbit-walking acceptance: name, forward [m/s], sideways [m/s],
+#: yaw rate [deg/s] (in the heading frame)
+WALK_TASKS = (
+    ("in_place", 0.0, 0.0, 0.0),
+    ("fwd_0.2", 0.2, 0.0, 0.0),
+    ("fwd_0.5", 0.5, 0.0, 0.0),
+    ("fwd_0.8", 0.8, 0.0, 0.0),
+    ("side_0.3", 0.0, 0.3, 0.0),
+    ("turn_30dps", 0.0, 0.0, 30.0),
+)
+
+
 class WalkLog(NamedTuple):
     """Per-step record of :func:`walk_orbits` (leading axes: robots, steps)."""
     x_robot: np.ndarray   # (B, K+1, 2, 3) robot [c, p, v] at SSP⁻_0..K
@@ -373,37 +434,65 @@ def orbit_step(z0, t_ssp, t_dsp, v_fwd, v_lat, width, heading, swing):
     return rot(p1.u, u_lat), rot(p1.p, p_lat), rot(p1.v, v_l)
 
 
+def nominal_next(A, Bm, k_h, x_h, u_h, z0, t_ssp, t_dsp, v_fwd, v_lat, width, heading, swing):
+    """One step of the orbit-following H-LIP nominal (numpy, batch B):
+    x_H,k+1 = A x_H,k + B u_H,k per world plane, then u_H,k+1 = u* + K_H ([p, v]_H,k+1 − [p*, v*])
+    with (u*, p*, v*) the P1/P2 orbit step of ``heading`` for the foot ``swing`` and K_H the
+    2-state deadbeat gain (B, 2): the nominal converges to the orbit of the current heading
+    (open-loop orbit steps diverge once the heading turns).  A (B, 3, 3), Bm (B, 3),
+    x_h (B, 2, 3), u_h (2, B).  Returns (x_H,k+1 (B, 2, 3), u_H,k+1 (2, B))."""
+    x_next = np.einsum("bij,bpj->bpi", A, x_h) + u_h.T[..., None] * Bm[:, None]
+    u_o, p_o, v_o = orbit_step(z0, t_ssp, t_dsp, v_fwd, v_lat, width, heading, swing)
+    u_next = u_o + (k_h[:, :1] * (x_next[:, :, 1] - p_o.T) + k_h[:, 1:] * (x_next[:, :, 2] - v_o.T)).T
+    return x_next, u_next
+
+
 def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_dsp=0.1,
-                width=0.25, gain=None, pushes=None, batch_step=None, return_ticks=False):
+                width=0.25, gain=None, gait=None, pushes=None, batch_step=None,
+                return_ticks=False):
     """Closed loop without MPC: the H-LIP nominal follows P1 (sagittal) / P2 (lateral) orbit
     steps in the heading frame, x_H,k+1 = A x_H,k + B u_H,k, heading θ_k = yaw_rate · k T;
     the robot steps by the stepping law (deadbeat K by default).  One robot per entry of
-    ``v_fwd``, ``v_lat``, ``yaw_rate`` (arrays of equal length B, vmapped).
+    ``v_fwd``, ``v_lat``, ``yaw_rate`` (arrays of equal length B, vmapped); ``z0``, ``t_ssp``,
+    ``t_dsp``, ``width`` are scalars or per-robot arrays, ``gain`` is (2, 3) or (B, 2, 3),
+    ``gait`` a :class:`hlip_jax.config.CassieConfig` or a sequence of B of them.
     Returns (WalkLog, per-step tick logs if ``return_ticks``)."""
     v_fwd, v_lat, yaw_rate = (np.atleast_1d(np.asarray(a, float)) for a in (v_fwd, v_lat, yaw_rate))
     B = v_fwd.size
+    z0, t_ssp, t_dsp, width = (np.broadcast_to(np.asarray(a, float), (B,)).copy()
+                               for a in (z0, t_ssp, t_dsp, width))
     T = t_ssp + t_dsp
-    A, Bm = (np.asarray(a) for a in hlip.s2s_matrices(z0, t_ssp, t_dsp))
+    A, Bm = (np.asarray(a) for a in jax.vmap(hlip.s2s_matrices)(z0, t_ssp, t_dsp))  # (B,3,3),(B,3)
     if gain is None:
-        k = np.asarray(hlip.deadbeat_gain(z0, t_ssp, t_dsp))
-        gain = np.tile(np.concatenate([[0.0], k]), (2, 1))
+        k = np.asarray(jax.vmap(hlip.deadbeat_gain)(z0, t_ssp, t_dsp))              # (B, 2)
+        gain = np.repeat(np.concatenate([np.zeros((B, 1)), k], 1)[:, None], 2, axis=1)
+    gain = np.broadcast_to(np.asarray(gain, float), (B, 2, 3))
+    if gait is None or not isinstance(gait, (list, tuple)):
+        gaits = [make_gait(gait)] * B
+    else:
+        if len(gait) != B:
+            raise ValueError(f"gait: expected one CassieConfig per robot ({B}), got {len(gait)}")
+        gaits = [make_gait(g) for g in gait]
     n_push = 1 if pushes is None else len(pushes)
     params = Params(push_start=np.full((B, n_push), -1.0), push_end=np.full((B, n_push), -1.0),
-                    push_force=np.zeros((B, n_push, 2)), ticks=np.zeros((B, tick_budget(T))))
+                    push_force=np.zeros((B, n_push, 2)),
+                    ticks=np.zeros((B, tick_budget(float(T.max())))),
+                    gait=jax.tree.map(lambda *a: np.stack(a), *gaits))
     if pushes is not None:
         for i, (t0, t1, fx, fy) in enumerate(pushes):
             params.push_start[:, i], params.push_end[:, i] = t0, t1
             params.push_force[:, i] = (fx, fy)
     params = jax.tree.map(jnp.asarray, params)
     x0 = jnp.zeros((2, 3))
-    states = [init(None, x0, None, None, jax.random.PRNGKey(i)) for i in range(B)]
-    state = jax.tree.map(lambda *a: jnp.stack(a), *states)
+    one = init(None, x0, None, None, jax.random.PRNGKey(0))       # every robot starts alike
+    state = jax.tree.map(lambda a: jnp.broadcast_to(a, (B,) + a.shape), one)
+    state = state._replace(key=jax.vmap(jax.random.PRNGKey)(jnp.arange(B)))
     if batch_step is None:
         batch_step = jax.jit(jax.vmap(step_with_log))
+    k_h = np.asarray(jax.vmap(hlip.deadbeat_gain)(z0, t_ssp, t_dsp))             # (B, 2)
     # nominal at SSP⁻_0: right stance ended, the left foot lands with u_H,0
     stance = 1
     heading = np.zeros(B)
-    xs, us = [], []
     u_h, p_h, v_h = orbit_step(z0, t_ssp, t_dsp, v_fwd, v_lat, width, heading, 1 - stance)
     x_h = np.stack([np.stack([np.zeros(B), p_h[0], v_h[0]], -1),
                     np.stack([np.zeros(B), p_h[1], v_h[1]], -1)], 1)          # (B, 2, 3)
@@ -416,14 +505,13 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
     ticks = []
     for k in range(n_steps):
         heading_next = yaw_rate * (k + 1) * T
-        x_h_next = x_h @ A.T + u_h.T[..., None] * Bm
-        u_h_next, _, _ = orbit_step(z0, t_ssp, t_dsp, v_fwd, v_lat, width, heading_next, stance)
-        cmd = StepCommand(t=jnp.full(B, k * T), stance=jnp.full(B, stance, jnp.int32),
+        x_h_next, u_h_next = nominal_next(A, Bm, k_h, x_h, u_h, z0, t_ssp, t_dsp, v_fwd, v_lat,
+                                          width, heading_next, stance)
+        cmd = StepCommand(t=jnp.asarray(k * T), stance=jnp.full(B, stance, jnp.int32),
                           x_hlip=jnp.asarray(x_h), u_hlip=jnp.asarray(u_h.T),
                           x_hlip_next=jnp.asarray(x_h_next), u_hlip_next=jnp.asarray(u_h_next.T),
-                          gain=jnp.broadcast_to(jnp.asarray(gain), (B, 2, 3)),
-                          heading=jnp.asarray(heading_next), t_ssp=jnp.full(B, t_ssp),
-                          t_dsp=jnp.full(B, t_dsp), z0=jnp.full(B, z0))
+                          gain=jnp.asarray(gain), heading=jnp.asarray(heading_next),
+                          t_ssp=jnp.asarray(t_ssp), t_dsp=jnp.asarray(t_dsp), z0=jnp.asarray(z0))
         state, res, tlog = batch_step(params, state, cmd)
         if return_ticks:
             ticks.append(jax.tree.map(np.asarray, tlog))
@@ -438,7 +526,8 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
         log["pelvis_yaw"].append(np.arctan2(np.asarray(R[:, 1, 0]), np.asarray(R[:, 0, 0])))
     out = {k: np.stack(v, axis=1) for k, v in log.items()}
     xr, ur = out["x_robot"], out["u_robot"]
-    w = xr[:, 2:] - np.einsum("ij,bkpj->bkpi", A, xr[:, 1:-1]) - ur[:, 1:-1, :, None] * Bm
+    w = (xr[:, 2:] - np.einsum("bij,bkpj->bkpi", A, xr[:, 1:-1])
+         - ur[:, 1:-1, :, None] * Bm[:, None, None])
     out["w"] = w
     out["e"] = xr - out["x_hlip"]
     out["failed"] = np.cumsum(out["failed"], axis=1) > 0
