@@ -38,8 +38,8 @@ RANGES = {
     "omega_swing": (8.0, 40.0, True), "omega_yaw": (5.0, 20.0, True),
     "weight_com": (0.05, 3.0, True), "weight_pelvis": (0.3, 5.0, True),
 }
-DEFAULT_WALK = {"t_ssp": 0.26, "t_dsp": 0.02, "z0": 0.85, "width": 0.15, "q_c": 0.05, "q_v": 0.25,
-                "r": 4.0}
+DEFAULT_WALK = {"t_ssp": 0.2726, "t_dsp": 0.02, "z0": 0.8413, "width": 0.15, "q_c": 0.07065,
+                "q_v": 0.247, "r": 2.673}
 
 
 def sample(rng, n, around=None, spread=0.15):

@@ -26,15 +26,18 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", choices=("cpu", "gpu"), default="cpu")
     ap.add_argument("--steps", type=int, default=8, help="walking steps per robot (≥ 2)")
-    ap.add_argument("--t-ssp", type=float, default=0.26)
+    ap.add_argument("--t-ssp", type=float, default=0.2726)
     ap.add_argument("--t-dsp", type=float, default=0.02)
-    ap.add_argument("--z0", type=float, default=0.85)
+    ap.add_argument("--z0", type=float, default=0.8413)
     ap.add_argument("--width", type=float, default=0.15, help="nominal step width [m]")
     ap.add_argument("--gain", choices=("lqr", "deadbeat"), default="lqr",
-                    help="3-state gain on [c, p, v]: LQR Q = diag(0.05, 1, 0.25), R = 4, or deadbeat")
+                    help="3-state gain on [c, p, v]: LQR Q = diag(0.07065, 1, 0.247), R = 2.673, or deadbeat")
     ap.add_argument("--tasks", default="all",
                     help="comma-separated subset of plant.WALK_TASKS (default all)")
     ap.add_argument("--out", default="cassie_walk_bench.json")
+    ap.add_argument("--figures", metavar="DIR",
+                    help="also plot each case's COM and footprints, foot heights and the "
+                         "lateral S2S state against the H-LIP (PNG files in DIR)")
     args = ap.parse_args(argv)
     if args.steps < 2:
         ap.error("--steps must be ≥ 2")
@@ -54,7 +57,8 @@ def main(argv=None):
     z0, ts, td = args.z0, args.t_ssp, args.t_dsp
     if args.gain == "lqr":
         A3, B3 = hlip.s2s_matrices(z0, ts, td)
-        k = np.asarray(hlip.lqr_gain(A3, B3, jnp.diag(jnp.array([0.05, 1.0, 0.25])), jnp.array(4.0)))
+        k = np.asarray(hlip.lqr_gain(A3, B3, jnp.diag(jnp.array([0.07065, 1.0, 0.247])),
+                                          jnp.array(2.673)))
     else:
         k = np.asarray(hlip.deadbeat_gain(z0, ts, td, with_position=True))
     gain = np.tile(k, (2, 1))
@@ -72,8 +76,9 @@ def main(argv=None):
                       batch_step=step_fn)
     t_compile = time.time() - t0
     t0 = time.time()
-    log, _ = plant.walk_orbits(vf, vl, yr, args.steps, z0=z0, t_ssp=ts, t_dsp=td,
-                               width=args.width, gain=gain, batch_step=step_fn)
+    log, ticks = plant.walk_orbits(vf, vl, yr, args.steps, z0=z0, t_ssp=ts, t_dsp=td,
+                                   width=args.width, gain=gain, batch_step=step_fn,
+                                   return_ticks=bool(args.figures))
     t_run = time.time() - t0
     print(f"compile {t_compile:.1f} s, run {t_run:.1f} s", flush=True)
     np.savez(os.path.splitext(args.out)[0] + "_log.npz", **log._asdict())
@@ -113,7 +118,49 @@ def main(argv=None):
     print(json.dumps({k: v for k, v in summary.items() if k != "cases"}))
     with open(args.out, "w") as fh:
         json.dump(summary, fh, indent=1)
+    if args.figures:
+        plot(args.figures, cases, log, ticks, T, td)
     return 0
+
+
+def plot(out_dir, cases, log, ticks, T, t_dsp):
+    """Per case: (a) COM path and footprints (x-y), (b) both feet's height over time with the
+    ticks in contact, (c) lateral pre-impact (p, v) of the robot and the H-LIP per step."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    os.makedirs(out_dir, exist_ok=True)
+    n_tick = int(round(T * 1000))
+    for i, (name, *_cmd) in enumerate(cases):
+        com = np.concatenate([t.com[i, :n_tick] for t in ticks])            # (n, 3)
+        feet = np.concatenate([t.feet[i, :n_tick] for t in ticks])          # (n, 2, 3)
+        time_s = np.arange(com.shape[0]) * 1e-3
+        fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
+        ax[0].plot(com[:, 0], com[:, 1], "g-", lw=1, label="COM")
+        for s, c in ((0, "tab:blue"), (1, "tab:red")):
+            down = feet[:, s, 2] < 0.01
+            ax[0].plot(feet[down, s, 0], feet[down, s, 1], ".", ms=2, color=c,
+                       label="left foot on ground" if s == 0 else "right foot on ground")
+        ax[0].set_aspect("equal", "datalim")
+        ax[0].set(xlabel="x [m]", ylabel="y [m]", title=f"{name}: COM and footprints")
+        ax[0].legend(fontsize=7)
+        k = min(len(time_s), 4000)
+        ax[1].plot(time_s[:k], feet[:k, 0, 2], color="tab:blue", label="left foot z")
+        ax[1].plot(time_s[:k], feet[:k, 1, 2], color="tab:red", label="right foot z")
+        ax[1].plot(time_s[:k], com[:k, 2] - 0.75, "g-", lw=0.8, label="COM z − 0.75 m")
+        ax[1].set(xlabel="t [s]", ylabel="[m]", title="foot heights (first 4 s)")
+        ax[1].legend(fontsize=7)
+        xr, xh = log.x_robot[i], log.x_hlip[i]
+        ax[2].plot(xr[1:, 1, 1], xr[1:, 1, 2], "o-", ms=3, lw=0.6, color="g", label="robot")
+        ax[2].plot(xh[1:, 1, 1], xh[1:, 1, 2], "s", ms=4, mfc="none", color="b", label="H-LIP")
+        ax[2].set(xlabel="lateral p [m]", ylabel="lateral v [m/s]",
+                  title="pre-impact lateral state per step")
+        ax[2].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(os.path.join(out_dir, f"cassie_walk_{name}.png"), dpi=80)
+        plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -122,6 +122,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("sweep", metavar="SWEEP")
     _sweep_overrides(s)
     s.add_argument("--scenarios", action="store_true", help="also list every scenario name")
+
+    b = sub.add_parser("bench", help="closed-loop Cassie throughput against physics-only MJX",
+                       description="Time the closed loop (MPC → stepping law → CLF-QP on MJX) on "
+                       "straight-line scenarios against zero-torque MJX on the same batch, in one "
+                       "process; print a markdown table (see hlip_jax/bench.py).")
+    b.add_argument("--batch", type=_positive_int, nargs="+", default=[2], metavar="N",
+                   help="batch sizes (robots per compiled call)")
+    b.add_argument("--duration", type=_finite_float, default=0.6, metavar="S",
+                   help="simulated seconds per robot (> 0)")
+    b.add_argument("--devices", type=_positive_int, nargs="+", default=[1], metavar="N",
+                   help="device counts: the same batch sharded over the first N local devices")
+    b.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
     return ap
 
 
@@ -215,6 +227,18 @@ def cmd_show(args) -> int:
     return EXIT_OK
 
 
+def cmd_bench(args) -> int:
+    if not args.duration > 0:
+        raise UserError(f"--duration must be > 0 s, got {args.duration}")
+    import json
+
+    from hlip_jax import bench
+    rows = bench.closed_loop(args.batch, args.duration, args.devices)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return EXIT_OK
+
+
 def main(argv=None) -> int:
     """Entry point of the ``hlip-sweep`` console script; returns the exit code."""
     from hlip_jax.report import ReportError
@@ -222,7 +246,8 @@ def main(argv=None) -> int:
     from hlip_jax.sweep import SweepError
 
     args = build_parser().parse_args(argv)
-    handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show}[args.cmd]
+    handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
+               "bench": cmd_bench}[args.cmd]
     try:
         return handler(args)
     except (UserError, SweepError, StoreError, ReportError) as err:

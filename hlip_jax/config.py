@@ -97,6 +97,9 @@ class ObstacleConfig:
     x: float = spec(0.0, -1e4, 1e4, "centre x", "m")
     y: float = spec(0.0, -1e4, 1e4, "centre y", "m")
     radius: float = spec(0.3, 0.0, 100.0, "keep-out radius", "m")
+    margin: float = spec(0.0, 0.0, 10.0, "planning margin: the MPC keeps the H-LIP's COM radius + margin "
+                         "away (tightening by the robot's tracking error); clearance is reported "
+                         "against radius", "m")
 
 
 @dataclass(frozen=True)
@@ -112,24 +115,25 @@ class CassieConfig:
 
     All are per-scenario data: a sweep over them shares one compiled program.  Output
     frequencies ω set the PD/CLF gains k_p = ω², k_d = 2ω of :mod:`hlip_jax.plants.cassie.clfqp`."""
-    clearance: float = spec(0.08, 0.0, 0.3, "swing-foot apex height", "m")
-    strike: float = spec(0.005, 0.0, 0.1, "swing target depth below the ground at the end of SSP", "m")
-    reach: float = spec(0.92, 0.3, 1.0, "fraction of SSP at which the swing foot reaches its target")
+    clearance: float = spec(0.08124, 0.0, 0.3, "swing-foot apex height", "m")
+    strike: float = spec(0.008274, 0.0, 0.1, "swing target depth below the ground at the end of SSP", "m")
+    reach: float = spec(0.9029, 0.3, 1.0, "fraction of SSP at which the swing foot reaches its target")
     freeze: float = spec(1.0, 0.3, 1.0, "fraction of SSP after which the step target is held")
-    early_contact: float = spec(0.75, 0.3, 1.0, "fraction of SSP after which a touching swing foot becomes a contact")
+    early_contact: float = spec(0.7258, 0.3, 1.0, "fraction of SSP after which a touching swing foot becomes a contact")
     step_length_max: float = spec(0.6, 0.1, 1.0, "|step length| clip of the swing target, along the heading", "m")
     step_width_min: float = spec(0.1, 0.0, 0.5, "minimum |step width| of the swing target, across the heading", "m")
     step_width_max: float = spec(0.5, 0.1, 1.0, "maximum |step width| of the swing target", "m")
-    foot_torque: float = spec(0.9, 0.0, 1.0, "foot-motor torque budget of a foot on the ground, fraction of its limit (0 = passive pivot)")
-    assist_ssp: float = spec(1.4, 0.0, 10.0, "factor on the COM-follows-H-LIP output's weight in SSP, along the heading (0 = off)")
-    assist_dsp: float = spec(2.2, 0.0, 10.0, "factor on the COM-follows-H-LIP output's weight in DSP, both directions (0 = off)")
-    omega_pelvis: float = spec(4.0, 0.5, 50.0, "pelvis orientation output frequency", "rad/s")
-    omega_height: float = spec(6.0, 0.5, 50.0, "COM height output frequency", "rad/s")
-    omega_com: float = spec(2.0, 0.5, 50.0, "COM horizontal (ankle assist) output frequency", "rad/s")
-    omega_swing: float = spec(30.0, 0.5, 80.0, "swing-foot position and slope output frequency", "rad/s")
-    omega_yaw: float = spec(7.0, 0.5, 50.0, "swing-foot yaw output frequency", "rad/s")
-    weight_com: float = spec(2.7, 0.0, 10.0, "QP tracking weight of the COM horizontal output")
-    weight_pelvis: float = spec(4.0, 0.0, 10.0, "QP tracking weight of the pelvis orientation outputs")
+    foot_torque: float = spec(0.8407, 0.0, 1.0, "foot-motor torque budget of a foot on the ground, fraction of its limit (0 = passive pivot)")
+    assist_ssp: float = spec(1.289, 0.0, 10.0, "factor on the COM-follows-H-LIP output's weight in SSP, along the heading (0 = off)")
+    assist_dsp: float = spec(2.189, 0.0, 10.0, "factor on the COM-follows-H-LIP output's weight in DSP, both directions (0 = off)")
+    turn_max: float = spec(15.0, 0.5, 90.0, "largest change of the pelvis / swing-foot heading target per step", "deg")
+    omega_pelvis: float = spec(4.429, 0.5, 50.0, "pelvis orientation output frequency", "rad/s")
+    omega_height: float = spec(5.324, 0.5, 50.0, "COM height output frequency", "rad/s")
+    omega_com: float = spec(2.452, 0.5, 50.0, "COM horizontal (ankle assist) output frequency", "rad/s")
+    omega_swing: float = spec(26.37, 0.5, 80.0, "swing-foot position and slope output frequency", "rad/s")
+    omega_yaw: float = spec(6.982, 0.5, 50.0, "swing-foot yaw output frequency", "rad/s")
+    weight_com: float = spec(2.563, 0.0, 10.0, "QP tracking weight of the COM horizontal output")
+    weight_pelvis: float = spec(5.0, 0.0, 10.0, "QP tracking weight of the pelvis orientation outputs")
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,7 @@ class MPCParams(NamedTuple):
     width_min: jax.Array    # |step width| limits [m]
     width_max: jax.Array
     obstacle_weight: jax.Array  # exact-penalty weight on slack [1/m]
-    obstacles: jax.Array    # (O, 3) rows (x, y, radius) [m]
+    obstacles: jax.Array    # (O, 3+) rows (x, y, planning radius, ...) [m]; extra columns unused
     obstacle_active: jax.Array  # (O,) bool
 
 

@@ -162,6 +162,7 @@ class Shapes(NamedTuple):
     n_obstacles: int
     n_pushes: int
     t_final: float
+    t_step: float = 0.0      # longest step T_SSP + T_DSP [s] (the Cassie plant's tick budget)
 
 
 def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
@@ -172,7 +173,8 @@ def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
         n_steps=K,
         n_obstacles=max((len(c.obstacles) for c in configs), default=0),
         n_pushes=max(1, max(len(c.disturbance.pushes) for c in configs)),
-        t_final=max((K + horizon + 2) * (c.hlip.t_ssp + c.hlip.t_dsp) for c in configs))
+        t_final=max((K + horizon + 2) * (c.hlip.t_ssp + c.hlip.t_dsp) for c in configs),
+        t_step=max(c.hlip.t_ssp + c.hlip.t_dsp for c in configs))
 
 
 def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=None,
@@ -204,10 +206,10 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
     rows = []
     for c in configs:
         A, B = _cached_s2s(c.hlip)
-        obs = np.zeros((n_obs, 3))
+        obs = np.zeros((n_obs, 4))
         act = np.zeros(n_obs, bool)
         for i, o in enumerate(c.obstacles):
-            obs[i] = (o.x, o.y, o.radius)
+            obs[i] = (o.x, o.y, o.radius + o.margin, o.radius)
             act[i] = True
         m = c.mpc
         mp = mpc.MPCParams(A=np.asarray(A), B=np.asarray(B), w_pos=m.w_pos, w_vel=m.w_vel,
@@ -222,7 +224,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
             plant = hlip_plant.make_params(c, n_push)
         else:
             from hlip_jax.plants.cassie import plant as cassie_plant  # heavy import, on demand
-            plant = cassie_plant.make_params(c, n_push)
+            plant = cassie_plant.make_params(c, n_push, t_step=shapes.t_step)
         rows.append(Scenario(mpc=mp, path=path, gain=stepping_gain(c), z0=c.hlip.z0,
                              t_ssp=c.hlip.t_ssp, t_dsp=c.hlip.t_dsp, x0=x0,
                              n_steps=np.int32(n_steps_of(c)), tube=np.bool_(m.mode == "tube"),
@@ -322,7 +324,7 @@ def simulate_one(scn: Scenario, static: Static):
         pnext, res = plant.step(scn.plant, carry.pstate, cmd)
         ref = paths.reference(scn.path, t_k)
         obs = scn.mpc.obstacles
-        gap = jnp.linalg.norm(carry.x_r[:, 0][None, :] - obs[:, :2], axis=-1) - obs[:, 2]
+        gap = jnp.linalg.norm(carry.x_r[:, 0][None, :] - obs[:, :2], axis=-1) - obs[:, 3]
         clearance = jnp.min(jnp.where(scn.mpc.obstacle_active, gap, jnp.inf), initial=jnp.inf)
         w = res.x_robot - (carry.x_r @ A.T) - carry.u_r[:, None] * B
         out = dict(t=t_k, stance=stance_k, x_hlip=carry.x_h, x_robot=carry.x_r,

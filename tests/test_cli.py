@@ -68,9 +68,9 @@ def test_help_everywhere(sub, capsys):
 def test_list_and_show(capsys):
     code, out, _ = cli(capsys, "list")
     assert code == 0
-    for name in ("paper", "gains", "speeds", "disturbances"):
+    for name in ("paper", "paper_hlip", "gains", "speeds", "disturbances"):
         assert name in out
-    code, out, _ = cli(capsys, "show", "paper")
+    code, out, _ = cli(capsys, "show", "paper_hlip")
     assert code == 0 and "= 20" in out and "gain.type" in out
     code, out, _ = cli(capsys, "show", ROOT / "sweeps" / "speeds.toml", "--limit", "5",
                        "--scenarios")
@@ -116,6 +116,11 @@ def test_user_errors(tmp_path, capsys):
     assert code == 2 and "--batch" in err
     code, _, err = cli(capsys, "run", "paper", "--plant", "atlas")
     assert code == 2 and "--plant" in err
+    # bench: bad sizes are refused before anything is built or compiled
+    code, _, err = cli(capsys, "bench", "--duration", "-1")
+    assert code == 2 and "--duration must be > 0" in err
+    code, _, err = cli(capsys, "bench", "--batch", "0")
+    assert code == 2 and "--batch" in err
 
 
 TINY = """

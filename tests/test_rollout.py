@@ -29,6 +29,9 @@ def _cases():
     cases["obstacle"] = ScenarioConfig(
         path=PathConfig(shape="sinusoid", params=dict(peak_speed=0.5)), duration=40.0,
         obstacles=(OBSTACLE,))
+    cases["obstacle_margin"] = ScenarioConfig(
+        path=PathConfig(shape="sinusoid", params=dict(peak_speed=0.5)), duration=40.0,
+        obstacles=(ObstacleConfig(x=2.0, y=0.0, radius=0.3, margin=0.2),))
     cases["push"] = ScenarioConfig(
         path=PathConfig(shape="line", params=dict(peak_speed=0.5, length=12.0)), duration=40.0,
         disturbance=DisturbanceConfig(pushes=(PUSH,), mass=33.0))
@@ -114,6 +117,18 @@ def test_obstacle_keep_out(run):
     assert np.all(err[passed + 10:][v[passed + 10:]] <= 0.10)
     # the obstacle actually pushed the COM off the path (the test is not vacuous)
     assert err[v].max() > OBSTACLE.radius - 0.05
+
+
+def test_obstacle_planning_margin(run):
+    """With a planning margin the COM keeps radius + margin away (−1 cm, the exact H-LIP plant
+    follows the plan), while the logged clearance is measured against the keep-out radius
+    itself (to 1e-5 m: float32/float64 round-off of a distance of ~1 m)."""
+    _, _, log = run
+    i = _idx(run, "obstacle_margin")
+    v = log.valid[i]
+    d = np.linalg.norm(log.x_robot[i, :, :, 0] - [2.0, 0.0], axis=-1)
+    assert np.all(d[v] >= 0.3 + 0.2 - 0.01), d[v].min()
+    np.testing.assert_allclose(log.clearance[i][v], d[v] - 0.3, atol=1e-5)
 
 
 def test_push_recovery(run):

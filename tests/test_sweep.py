@@ -44,7 +44,7 @@ def test_shipped_sweeps_validate(path):
 
 
 def test_paper_sweep_contents():
-    sw = sweep.load_sweep(ROOT / "sweeps" / "paper.toml")
+    sw = sweep.load_sweep(ROOT / "sweeps" / "paper_hlip.toml")
     assert 10 <= len(sw.scenarios) <= 40
     shapes = {c.path.shape for c in sw.scenarios}
     assert {"circle", "sinusoid", "square", "cardioid"} <= shapes
@@ -54,6 +54,18 @@ def test_paper_sweep_contents():
     pushed = [c for c in sw.scenarios if c.disturbance.pushes]
     assert pushed
     p = pushed[0].disturbance.pushes[0]
+    assert (p.force, p.duration, p.time, p.direction) == (200.0, 0.1, 10.0, 90.0)
+
+
+def test_paper_sweep_runs_on_cassie():
+    """The shipped paper.toml is the paper's evaluation on Cassie: the four shapes, the
+    obstacle on the sinusoid (with a planning margin), the 200 N push at 10 s."""
+    sw = sweep.load_sweep(ROOT / "sweeps" / "paper.toml")
+    assert {c.plant for c in sw.scenarios} == {"cassie"}
+    assert {"circle", "sinusoid", "square", "cardioid", "line"} == {c.path.shape for c in sw.scenarios}
+    obst = [c for c in sw.scenarios if c.obstacles]
+    assert len(obst) == 1 and obst[0].obstacles[0].margin > 0
+    p = [c for c in sw.scenarios if c.disturbance.pushes][0].disturbance.pushes[0]
     assert (p.force, p.duration, p.time, p.direction) == (200.0, 0.1, 10.0, 90.0)
 
 

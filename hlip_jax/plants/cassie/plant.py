@@ -77,6 +77,7 @@ class Gait(NamedTuple):
     foot_torque: jax.Array
     assist_ssp: jax.Array
     assist_dsp: jax.Array
+    turn_max: jax.Array
     gains: clfqp.Gains
 
 
@@ -103,7 +104,8 @@ def make_gait(cfg=None) -> Gait:
              freeze=f(cfg.freeze), early_contact=f(cfg.early_contact),
              step_length_max=f(cfg.step_length_max), step_width_min=f(cfg.step_width_min),
              step_width_max=f(cfg.step_width_max), foot_torque=f(cfg.foot_torque),
-             assist_ssp=f(cfg.assist_ssp), assist_dsp=f(cfg.assist_dsp), gains=clfqp.make_gains(omega, weight=weight))
+             assist_ssp=f(cfg.assist_ssp), assist_dsp=f(cfg.assist_dsp),
+             turn_max=f(np.deg2rad(cfg.turn_max)), gains=clfqp.make_gains(omega, weight=weight))
     _GAIT_CACHE[cfg] = g
     return g
 
@@ -126,16 +128,18 @@ class State(NamedTuple):
 
 
 def tick_budget(t_step: float) -> int:
-    """Static ticks per step: T rounded up to 0.1 s, at least 0.4 s (so batches with
-    T ≤ 0.4 s share one shape)."""
-    return int(max(400, 100 * math.ceil(t_step / 0.1 - 1e-9)))
+    """Static 1 kHz ticks per step: T_SSP + T_DSP rounded up to 10 ms (ticks past the step's
+    own T are idle, so a batch uses the longest step of the sweep)."""
+    return int(10 * math.ceil(round(t_step / (10 * control.CONTROL_DT), 6)))
 
 
-def make_params(cfg, n_push: int) -> Params:
+def make_params(cfg, n_push: int, t_step: float = 0.0) -> Params:
     """Per-scenario plant data from a :class:`hlip_jax.config.ScenarioConfig`; pushes act on
-    the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`)."""
+    the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`).  The tick
+    budget covers ``max(t_step, T_SSP + T_DSP)`` (pass the sweep's longest step so that every
+    chunk has one shape)."""
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
-    ticks = np.zeros(tick_budget(cfg.hlip.t_ssp + cfg.hlip.t_dsp))
+    ticks = np.zeros(tick_budget(max(t_step, cfg.hlip.t_ssp + cfg.hlip.t_dsp)))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,
                   gait=make_gait(cfg.cassie))
 
@@ -231,7 +235,10 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
     terms0 = model.robot_terms(c, d0)
     feet0 = outputs.foot_centres(terms0)
     yaw_from = state.yaw
-    dyaw = outputs.wrap(cmd.heading - yaw_from)
+    # the heading target moves at most turn_max per step (a path that starts or turns faster
+    # than the robot can follow is caught up over the next steps)
+    dyaw = jnp.clip(outputs.wrap(cmd.heading - yaw_from), -gait.turn_max, gait.turn_max)
+    heading = yaw_from + dyaw
     foot_yaw0 = terms0.foot_yaw
 
     class Carry(NamedTuple):
@@ -269,7 +276,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
             cmd.gain * _flow_to_impact(x_r - x_h, t_ssp - jnp.minimum(ts, t_ssp), cmd.z0), axis=-1)
         # step limits in the heading frame (length along, width across the path heading)
         sgn = jnp.where(sw == 0, 1.0, -1.0)
-        ch, sh = jnp.cos(cmd.heading), jnp.sin(cmd.heading)
+        ch, sh = jnp.cos(heading), jnp.sin(heading)
         u_al = ch * u_des[0] + sh * u_des[1]
         u_ac = -sh * u_des[0] + ch * u_des[1]
         u_al = jnp.clip(u_al, -gait.step_length_max, gait.step_length_max)
@@ -299,8 +306,8 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
         fz = jnp.where(in_dsp, lz, hz)
         f_vel = jnp.where(in_dsp, jnp.array([0.0, 0.0, 1.0]) * lzd, jnp.stack([vxy[0], vxy[1], hzd]))
         f_acc = jnp.where(in_dsp, jnp.array([0.0, 0.0, 1.0]) * lzdd, jnp.stack([axy[0], axy[1], hzdd]))
-        fyaw = jnp.where(in_dsp, yaw_from, (1 - cb) * carry.sw_yaw0 + cb * cmd.heading)
-        fyaw_d = jnp.where(in_dsp, 0.0, cdot * outputs.wrap(cmd.heading - carry.sw_yaw0))
+        fyaw = jnp.where(in_dsp, yaw_from, (1 - cb) * carry.sw_yaw0 + cb * heading)
+        fyaw_d = jnp.where(in_dsp, 0.0, cdot * outputs.wrap(heading - carry.sw_yaw0))
         # the moving foot: in DSP the landing foot (= new stance), in SSP the swing foot
         mv = jnp.where(in_dsp, new_st, sw)
         for s in (0, 1):
@@ -381,7 +388,8 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
     sw_xy = jnp.where(sw == 0, feet[0, :2], feet[1, :2])
     u_robot = sw_xy - st_xy
     failed = carry.fell | ~jnp.all(jnp.isfinite(x_r))
-    new = State(d=carry.d, warm=carry.warm, time=state.time + t_end, yaw=cmd.heading.astype(dt),
+    new = State(d=carry.d, warm=carry.warm, time=state.time + t_end,
+                yaw=outputs.wrap(heading).astype(dt),
                 land_xy=st_xy + carry.u_last, key=state.key)
     return new, StepResult(x_robot=x_r, u_robot=u_robot, failed=failed), log
 

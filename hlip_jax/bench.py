@@ -1,0 +1,106 @@
+"""Closed-loop Cassie throughput (``hlip-sweep bench``): the MPC on the H-LIP driving the MJX
+Cassie plant through the stepping law and the CLF-QP, one compiled, vmapped call over a batch
+of straight-line scenarios (0, 0.2, 0.4, 0.6 m/s, the default gait), against physics-only MJX
+(zero torque, same model, same batch, same number of ticks) in the same process.
+
+Per batch size and device count: compile + first run [s], timed run [s], simulated
+robot-seconds per wall-second, physics steps per second in the loop (2 per 1 kHz control tick,
+only the ticks that simulate), the physics-only rate on one device and the ratio, the fraction
+of robots still walking at the end, and the accelerator's peak memory per robot where the
+backend reports it (``memory_stats``; None on the CPU).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, Sequence
+
+#: the gait of docs/cassie_gait.md (H-LIP timing and 3-state LQR stepping gain)
+Z0, T_SSP, T_DSP = 0.8413, 0.2726, 0.02
+GAIN = dict(type="lqr", with_position=True, q_c=0.07065, q_p=1.0, q_v=0.247, r=2.673)
+SPEEDS = (0.0, 0.2, 0.4, 0.6)
+
+HEADER = ("| batch | devices | steps | compile + first [s] | run [s] | robot-s / s | physics steps/s "
+          "(closed loop) | physics only, 1 device [steps/s] | ratio | walking at end | "
+          "peak memory / robot [MiB] |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+
+
+def configs(n: int, duration: float):
+    """n straight-line Cassie scenarios, speeds cycling through SPEEDS."""
+    from hlip_jax.config import GainConfig, HLIPConfig, PathConfig, ScenarioConfig
+    return [ScenarioConfig(plant="cassie", seed=i, duration=duration,
+                           hlip=HLIPConfig(z0=Z0, t_ssp=T_SSP, t_dsp=T_DSP),
+                           gain=GainConfig(**GAIN),
+                           path=PathConfig(shape="line", params=dict(
+                               peak_speed=max(SPEEDS[i % len(SPEEDS)], 0.01), length=5.0)))
+            for i in range(n)]
+
+
+def _peak_bytes(devices):
+    try:
+        stats = [d.memory_stats() for d in devices]
+    except Exception:  # noqa: BLE001 - a backend without memory statistics
+        return None
+    if not stats or any(s is None or "peak_bytes_in_use" not in s for s in stats):
+        return None
+    return sum(s["peak_bytes_in_use"] for s in stats)
+
+
+def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] = (1,),
+                emit: Callable[[str], None] = print) -> list[dict]:
+    """Run the benchmark for every batch size × device count; ``emit`` gets the markdown
+    table (header, then one row per run).  Returns one dict per run."""
+    import jax
+    import numpy as np
+
+    from hlip_jax import rollout
+    from hlip_jax.plants.cassie import control, model
+    from hlip_jax.plants.cassie import plant as cassie_plant
+
+    emit(f"backend {jax.default_backend()} device {jax.devices()[0].device_kind}; "
+         f"{duration} s per robot")
+    emit(HEADER)
+    cassie = cassie_plant.cassie()
+    rows = []
+    for B in batches:
+        batch, static = rollout.build(configs(B, duration))
+        T = float(np.asarray(batch.t_ssp[0] + batch.t_dsp[0]))
+        ticks = static.n_steps * int(round(T / control.CONTROL_DT))
+        steps = ticks * control.SUBSTEPS
+        sim_s = B * static.n_steps * T
+        runs = []
+        for n_dev in devices:
+            if n_dev > len(jax.devices()) or B % n_dev:
+                emit(f"skipping {n_dev} devices (have {len(jax.devices())}; batch {B})")
+                continue
+            devs = jax.devices()[:n_dev]
+            placed = rollout.place(batch, rollout.scenario_sharding(devs))
+            t0 = time.perf_counter()
+            with jax.default_matmul_precision("highest"):
+                out = rollout.run(placed, static)
+                jax.block_until_ready(out)
+                t1 = time.perf_counter()
+                out = rollout.run(placed, static)
+                jax.block_until_ready(out)
+            t2 = time.perf_counter()
+            peak = _peak_bytes(devs)
+            runs.append((n_dev, t1 - t0, t2 - t1, np.asarray(out["status"]), peak))
+        d = model.make_batch(cassie, B, jax.random.PRNGKey(0))
+        physics_only = jax.jit(jax.vmap(lambda d: control.zero_torque_rollout(cassie, d, ticks)))
+        jax.block_until_ready(physics_only(d))
+        t3 = time.perf_counter()
+        jax.block_until_ready(physics_only(d))
+        prate = B * steps / (time.perf_counter() - t3)
+        for n_dev, t_first, t_run, status, peak in runs:
+            rate = B * steps / t_run
+            row = dict(batch=B, devices=n_dev, steps=static.n_steps, compile_first_s=t_first,
+                       run_s=t_run, robot_s_per_s=sim_s / t_run, physics_steps_per_s=rate,
+                       physics_only_steps_per_s=prate, ratio=rate / prate,
+                       walking=float(np.mean(status == rollout.STATUS_OK)),
+                       peak_mib_per_robot=None if peak is None else peak / B / 2**20)
+            rows.append(row)
+            mem = "–" if peak is None else f"{row['peak_mib_per_robot']:.2f}"
+            emit(f"| {B} | {n_dev} | {static.n_steps} | {t_first:.1f} | {t_run:.2f} | "
+                 f"{row['robot_s_per_s']:,.1f} | {rate:,.0f} | {prate:,.0f} | {row['ratio']:.2f} | "
+                 f"{row['walking']:.3f} | {mem} |")
+    return rows
