@@ -172,8 +172,9 @@ def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
     (used while walking; standing push recovery does better with the clipped last iterate)."""
     prob = build(meas, des, cond, contact, tau_min, tau_max, gains)
     sol = qp.solve(prob.P, prob.q, prob.A, prob.l, prob.u, settings=settings, warm_start=warm)
-    # a problem the ADMM budget did not solve (typically infeasible contact rows at an impact)
-    # keeps the previous tick's torques instead of an unconverged iterate
+    # with ``fallback`` a problem the ADMM budget did not solve (typically infeasible contact
+    # rows at an impact) keeps the previous tick's torques instead of an unconverged iterate;
+    # without it only a non-finite iterate falls back
     finite = jnp.all(jnp.isfinite(sol.x)) & jnp.all(jnp.isfinite(sol.y))
     solved = (sol.status == qp.SOLVED) | (sol.status == qp.SOLVED_INACCURATE)
     ok = finite & solved if fallback else finite

@@ -5,7 +5,7 @@ The whole-body model (see :mod:`hlip_jax.plants.cassie.model` for conventions)
     M q̈ + h − f_p = B τ + Jᵀ λ,        J q̈ + J̇q̇ = 0,
 
 with τ (nu = 10) the motor torques [N m] (ctrl units), f_p the spring/damping forces,
-J (24 × nv) the stacked holonomic constraints
+J (28 × nv) the stacked holonomic constraints
 
     rows  0..11: the four closed chains (achilles and plantar rods, :data:`model.LOOPS` order),
     rows 12..23: the four contact sites (left toe, left heel, right toe, right heel; xyz each),
@@ -138,7 +138,7 @@ def condense(terms: model.RobotTerms, actuation, contact, springs=None,
     cf = cho_factor(M)
     rhs = jnp.concatenate([B, (terms.passive - terms.bias)[:, None]], axis=1)   # (nv, nu+1)
     Minv_rhs = cho_solve(cf, rhs)
-    Minv_Jt = cho_solve(cf, J.T)                                                 # (nv, 24)
+    Minv_Jt = cho_solve(cf, J.T)                                                 # (nv, 28)
     G = J @ Minv_Jt
     G = G + jnp.diag(1.0 - active)                    # inactive rows: λ = 0
     rhs_l = -(J @ Minv_rhs)
