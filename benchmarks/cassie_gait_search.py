@@ -38,8 +38,6 @@ RANGES = {
     "omega_swing": (8.0, 40.0, True), "omega_yaw": (5.0, 20.0, True),
     "weight_com": (0.05, 3.0, True), "weight_pelvis": (0.3, 5.0, True),
 }
-DEFAULT_WALK = {"t_ssp": 0.2726, "t_dsp": 0.02, "z0": 0.8413, "width": 0.15, "q_c": 0.07065,
-                "q_v": 0.247, "r": 2.673}
 
 
 def sample(rng, n, around=None, spread=0.15):
@@ -80,15 +78,13 @@ def main(argv=None):
     import jax
 
     jax.config.update("jax_enable_x64", args.device == "cpu")
-    import jax.numpy as jnp
     import numpy as np
 
-    from hlip_jax import hlip
     from hlip_jax.config import CassieConfig
     from hlip_jax.plants.cassie import plant
 
     rng = np.random.default_rng(args.seed)
-    defaults = {**DEFAULT_WALK, **{f.name: getattr(CassieConfig(), f.name)
+    defaults = {**plant.WALK_DEFAULTS, **{f.name: getattr(CassieConfig(), f.name)
                                    for f in dataclasses.fields(CassieConfig)}}
     around = None
     if args.around:
@@ -103,10 +99,7 @@ def main(argv=None):
     col = lambda k: np.array([s[k] for s, _ in rows])                     # noqa: E731
     z0, ts, td = col("z0"), col("t_ssp"), col("t_dsp")
     # stepping gain: 3-state LQR on [c, p, v] per plane, Q = diag(q_c, 1, q_v), R = r
-    A3, B3 = jax.vmap(hlip.s2s_matrices)(z0, ts, td)
-    Q = jax.vmap(lambda qc, qv: jnp.diag(jnp.stack([qc, jnp.ones_like(qv), qv])))(
-        jnp.asarray(col("q_c")), jnp.asarray(col("q_v")))
-    k = np.asarray(jax.vmap(hlip.lqr_gain)(A3, B3, Q, jnp.asarray(col("r"))))   # (B, 3)
+    k = np.asarray(jax.vmap(plant.lqr_step_gain)(z0, ts, td, col("q_c"), col("q_v"), col("r")))
     gain = np.repeat(k.reshape(B, 1, 3), 2, axis=1)
     gaits = [CassieConfig(**{f.name: s[f.name] for f in dataclasses.fields(CassieConfig)
                              if f.name in s}) for s, _ in rows]
@@ -137,14 +130,7 @@ def main(argv=None):
         r = dict(steps=n_ok)
         lo = max(1, K // 2)
         if n_ok == K:
-            c = log.x_robot[i, lo:, :, 0]
-            hd = log.heading[i, lo:-1]
-            dc = np.diff(c, axis=0)
-            dur = (K - lo) * T[i]
-            r["fwd"] = float(np.cos(hd) @ dc[:, 0] + np.sin(hd) @ dc[:, 1]) / dur
-            r["side"] = float(-np.sin(hd) @ dc[:, 0] + np.cos(hd) @ dc[:, 1]) / dur
-            r["yaw_rate_deg"] = float(np.rad2deg(np.unwrap(log.pelvis_yaw[i, lo:])[-1]
-                                                 - log.pelvis_yaw[i, lo]) / dur)
+            r["fwd"], r["side"], r["yaw_rate_deg"] = plant.walk_speeds(log, i, lo, K, T[i])
             w = log.w[i, lo - 1:]
             r["w_max"] = np.abs(w[..., 1:]).max(0).tolist()     # (plane, [p, v])
         per_robot.append(r)

@@ -26,12 +26,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", choices=("cpu", "gpu"), default="cpu")
     ap.add_argument("--steps", type=int, default=8, help="walking steps per robot (≥ 2)")
-    ap.add_argument("--t-ssp", type=float, default=0.2726)
-    ap.add_argument("--t-dsp", type=float, default=0.02)
-    ap.add_argument("--z0", type=float, default=0.8413)
-    ap.add_argument("--width", type=float, default=0.15, help="nominal step width [m]")
+    ap.add_argument("--t-ssp", type=float, help="default: plant.WALK_DEFAULTS")
+    ap.add_argument("--t-dsp", type=float, help="default: plant.WALK_DEFAULTS")
+    ap.add_argument("--z0", type=float, help="default: plant.WALK_DEFAULTS")
+    ap.add_argument("--width", type=float, help="nominal step width [m]; default: plant.WALK_DEFAULTS")
     ap.add_argument("--gain", choices=("lqr", "deadbeat"), default="lqr",
-                    help="3-state gain on [c, p, v]: LQR Q = diag(0.07065, 1, 0.247), R = 2.673, or deadbeat")
+                    help="3-state gain on [c, p, v]: the LQR of plant.WALK_DEFAULTS, or deadbeat")
     ap.add_argument("--tasks", default="all",
                     help="comma-separated subset of plant.WALK_TASKS (default all)")
     ap.add_argument("--out", default="cassie_walk_bench.json")
@@ -48,17 +48,17 @@ def main(argv=None):
     import jax
 
     jax.config.update("jax_enable_x64", args.device == "cpu")
-    import jax.numpy as jnp
     import numpy as np
 
     from hlip_jax import hlip
     from hlip_jax.plants.cassie import plant
 
-    z0, ts, td = args.z0, args.t_ssp, args.t_dsp
+    dflt = plant.WALK_DEFAULTS
+    pick = lambda v, k: dflt[k] if v is None else v                     # noqa: E731
+    z0, ts, td = pick(args.z0, "z0"), pick(args.t_ssp, "t_ssp"), pick(args.t_dsp, "t_dsp")
+    width = pick(args.width, "width")
     if args.gain == "lqr":
-        A3, B3 = hlip.s2s_matrices(z0, ts, td)
-        k = np.asarray(hlip.lqr_gain(A3, B3, jnp.diag(jnp.array([0.07065, 1.0, 0.247])),
-                                          jnp.array(2.673)))
+        k = np.asarray(plant.lqr_step_gain(z0, ts, td, dflt["q_c"], dflt["q_v"], dflt["r"]))
     else:
         k = np.asarray(hlip.deadbeat_gain(z0, ts, td, with_position=True))
     gain = np.tile(k, (2, 1))
@@ -72,12 +72,12 @@ def main(argv=None):
     step_fn = jax.jit(jax.vmap(plant.step_with_log))
     # compile (and warm up) on a 1-step run, then time the real one
     t0 = time.time()
-    plant.walk_orbits(vf, vl, yr, 1, z0=z0, t_ssp=ts, t_dsp=td, width=args.width, gain=gain,
+    plant.walk_orbits(vf, vl, yr, 1, z0=z0, t_ssp=ts, t_dsp=td, width=width, gain=gain,
                       batch_step=step_fn)
     t_compile = time.time() - t0
     t0 = time.time()
     log, ticks = plant.walk_orbits(vf, vl, yr, args.steps, z0=z0, t_ssp=ts, t_dsp=td,
-                                   width=args.width, gain=gain, batch_step=step_fn,
+                                   width=width, gain=gain, batch_step=step_fn,
                                    return_ticks=bool(args.figures))
     t_run = time.time() - t0
     print(f"compile {t_compile:.1f} s, run {t_run:.1f} s", flush=True)
@@ -89,21 +89,14 @@ def main(argv=None):
         n_ok = int(np.argmax(failed)) if failed.any() else args.steps
         row = dict(case=name, cmd_forward=f, cmd_sideways=s, cmd_yaw_rate_deg=y, steps_walked=n_ok)
         if n_ok >= 2:
-            c = log.x_robot[i, :n_ok + 1, :, 0]
-            hd = log.heading[i, :n_ok + 1]
             # average over the last 10 s walked (all but the start-up step if shorter)
             lo = max(1, n_ok - int(round(10.0 / T)))
-            d = c[-1] - c[lo]
-            dur = (n_ok - lo) * T
-            h = hd[lo:-1]                                 # heading over each interval
-            fwd = np.cos(h) @ np.diff(c[lo:, 0]) + np.sin(h) @ np.diff(c[lo:, 1])
-            side = -np.sin(h) @ np.diff(c[lo:, 0]) + np.cos(h) @ np.diff(c[lo:, 1])
+            fwd, side, yaw_rate = plant.walk_speeds(log, i, lo, n_ok, T)
+            d = log.x_robot[i, n_ok, :, 0] - log.x_robot[i, lo, :, 0]
             w = log.w[i, :n_ok - 1]
             e = log.e[i, :n_ok + 1]
-            row.update(window_s=dur, speed_forward=float(fwd / dur), speed_sideways=float(side / dur),
-                       displacement=d.tolist(),
-                       yaw_rate_deg=float(np.rad2deg(np.unwrap(log.pelvis_yaw[i, :n_ok + 1])[-1]
-                                                     - np.unwrap(log.pelvis_yaw[i, :n_ok + 1])[lo]) / dur),
+            row.update(window_s=(n_ok - lo) * T, speed_forward=fwd, speed_sideways=side,
+                       displacement=d.tolist(), yaw_rate_deg=yaw_rate,
                        w_max_abs={pl: np.abs(w[:, j, 1:]).max(0).tolist() for j, pl in enumerate("xy")},
                        w_std={pl: w[:, j, 1:].std(0).tolist() for j, pl in enumerate("xy")},
                        e_max_abs={pl: np.abs(e[:, j, 1:]).max(0).tolist() for j, pl in enumerate("xy")})
@@ -119,13 +112,13 @@ def main(argv=None):
     with open(args.out, "w") as fh:
         json.dump(summary, fh, indent=1)
     if args.figures:
-        plot(args.figures, cases, log, ticks, T, td)
+        plot(args.figures, cases, log, ticks, T)
     return 0
 
 
-def plot(out_dir, cases, log, ticks, T, t_dsp):
-    """Per case: (a) COM path and footprints (x-y), (b) both feet's height over time with the
-    ticks in contact, (c) lateral pre-impact (p, v) of the robot and the H-LIP per step."""
+def plot(out_dir, cases, log, ticks, T):
+    """Per case: (a) COM path and footprints (x-y), (b) both feet's height and the COM height
+    over the first 4 s, (c) lateral pre-impact (p, v) of the robot and the H-LIP per step."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

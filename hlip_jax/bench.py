@@ -15,9 +15,6 @@ from __future__ import annotations
 import time
 from typing import Callable, Sequence
 
-#: the gait of docs/cassie_gait.md (H-LIP timing and 3-state LQR stepping gain)
-Z0, T_SSP, T_DSP = 0.8413, 0.2726, 0.02
-GAIN = dict(type="lqr", with_position=True, q_c=0.07065, q_p=1.0, q_v=0.247, r=2.673)
 SPEEDS = (0.0, 0.2, 0.4, 0.6)
 
 HEADER = ("| batch | devices | steps | compile + first [s] | run [s] | robot-s / s | physics steps/s "
@@ -26,11 +23,14 @@ HEADER = ("| batch | devices | steps | compile + first [s] | run [s] | robot-s /
 
 
 def configs(n: int, duration: float):
-    """n straight-line Cassie scenarios, speeds cycling through SPEEDS."""
+    """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
+    of docs/cassie_gait.md (H-LIP timing and 3-state LQR stepping gain: plant.WALK_DEFAULTS)."""
     from hlip_jax.config import GainConfig, HLIPConfig, PathConfig, ScenarioConfig
+    from hlip_jax.plants.cassie.plant import WALK_DEFAULTS as W
     return [ScenarioConfig(plant="cassie", seed=i, duration=duration,
-                           hlip=HLIPConfig(z0=Z0, t_ssp=T_SSP, t_dsp=T_DSP),
-                           gain=GainConfig(**GAIN),
+                           hlip=HLIPConfig(z0=W["z0"], t_ssp=W["t_ssp"], t_dsp=W["t_dsp"]),
+                           gain=GainConfig(type="lqr", with_position=True, q_c=W["q_c"], q_p=1.0,
+                                           q_v=W["q_v"], r=W["r"]),
                            path=PathConfig(shape="line", params=dict(
                                peak_speed=max(SPEEDS[i % len(SPEEDS)], 0.01), length=5.0)))
             for i in range(n)]

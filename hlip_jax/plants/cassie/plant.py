@@ -414,6 +414,20 @@ WALK_TASKS = (
     ("turn_30dps", 0.0, 0.0, 30.0),
 )
 
+#: the default orbit walk (gait search set #85, docs/cassie_gait.md): H-LIP T_SSP, T_DSP [s],
+#: COM height z0 [m], nominal step width [m], and the weights of the 3-state LQR stepping gain
+#: Q = diag(q_c, 1, q_v), R = r (see :func:`lqr_step_gain`)
+WALK_DEFAULTS = dict(t_ssp=0.2726, t_dsp=0.02, z0=0.8413, width=0.15, q_c=0.07065, q_v=0.247,
+                     r=2.673)
+
+
+def lqr_step_gain(z0, t_ssp, t_dsp, q_c, q_v, r):
+    """3-state LQR stepping gain K (3,) on [c, p, v] of one plane, Q = diag(q_c, 1, q_v),
+    R = r (all traced: vmap over robots)."""
+    A, B = hlip.s2s_matrices(z0, t_ssp, t_dsp)
+    q_c, q_v = jnp.asarray(q_c, A.dtype), jnp.asarray(q_v, A.dtype)
+    return hlip.lqr_gain(A, B, jnp.diag(jnp.stack([q_c, jnp.ones_like(q_c), q_v])), r)
+
 
 class WalkLog(NamedTuple):
     """Per-step record of :func:`walk_orbits` (leading axes: robots, steps)."""
@@ -540,3 +554,17 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
     out["e"] = xr - out["x_hlip"]
     out["failed"] = np.cumsum(out["failed"], axis=1) > 0
     return WalkLog(**out), ticks
+
+
+def walk_speeds(log: WalkLog, i: int, lo: int, hi: int, T: float):
+    """Average motion of robot ``i`` from SSP⁻_lo to SSP⁻_hi of a :func:`walk_orbits` log:
+    (forward, sideways) COM speed in the heading frame of each step [m/s] and the pelvis yaw
+    rate [deg/s]; ``T`` is the step duration [s]."""
+    c = log.x_robot[i, lo:hi + 1, :, 0]
+    h = log.heading[i, lo:hi]                                    # heading over each interval
+    dc = np.diff(c, axis=0)
+    dur = (hi - lo) * T
+    fwd = float(np.cos(h) @ dc[:, 0] + np.sin(h) @ dc[:, 1]) / dur
+    side = float(-np.sin(h) @ dc[:, 0] + np.cos(h) @ dc[:, 1]) / dur
+    yaw = np.unwrap(log.pelvis_yaw[i, lo:hi + 1])
+    return fwd, side, float(np.rad2deg(yaw[-1] - yaw[0])) / dur
