@@ -22,12 +22,13 @@ HEADER = ("| batch | devices | steps | compile + first [s] | run [s] | robot-s /
           "peak memory / robot [MiB] |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
 
 
-def configs(n: int, duration: float):
+def configs(n: int, duration: float, qp_max_iter: int | None = None):
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
     of docs/cassie_gait.md (H-LIP timing and 3-state LQR stepping gain: plant.WALK_DEFAULTS)."""
-    from hlip_jax.config import GainConfig, HLIPConfig, PathConfig, ScenarioConfig
+    from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
     from hlip_jax.plants.cassie.plant import WALK_DEFAULTS as W
-    return [ScenarioConfig(plant="cassie", seed=i, duration=duration,
+    cassie = CassieConfig() if qp_max_iter is None else CassieConfig(qp_max_iter=qp_max_iter)
+    return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
                            hlip=HLIPConfig(z0=W["z0"], t_ssp=W["t_ssp"], t_dsp=W["t_dsp"]),
                            gain=GainConfig(type="lqr", with_position=True, q_c=W["q_c"], q_p=1.0,
                                            q_v=W["q_v"], r=W["r"]),
@@ -46,10 +47,28 @@ def _peak_bytes(devices):
     return sum(s["peak_bytes_in_use"] for s in stats)
 
 
+ADMM_HEADER = ("| batch | CLF-QP ADMM budget [iterations] | run [s] | physics steps/s | "
+               "ADMM iterations' share of the closed loop |\n|---:|---:|---:|---:|---:|")
+
+
+def admm_share(t_full: float, t_short: float, it_full: int, it_short: int) -> float:
+    """Share of the closed-loop time spent in ADMM iterations, from two runs that differ only
+    in the CLF-QP's iteration budget: (t_full − t_short) is the cost of it_full − it_short
+    iterations per tick, so the it_full iterations cost (t_full − t_short)·it_full /
+    (it_full − it_short).  Exact when every tick of the batch runs its whole budget (a vmapped
+    ADMM loop stops only when every robot's QP has converged: with thousands of robots some
+    robot is always at an impact); the QP's setup (building, scaling, factorising) is not
+    counted."""
+    return (t_full - t_short) * it_full / (it_full - it_short) / t_full
+
+
 def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] = (1,),
-                emit: Callable[[str], None] = print) -> list[dict]:
+                emit: Callable[[str], None] = print, admm: bool = False) -> list[dict]:
     """Run the benchmark for every batch size × device count; ``emit`` gets the markdown
-    table (header, then one row per run).  Returns one dict per run."""
+    table (header, then one row per run).  With ``admm`` every batch size is also run (one
+    device) with the CLF-QP's ADMM budget cut to one convergence check, and the ADMM
+    iterations' share of the tick follows (:func:`admm_share`, second table).  Returns one
+    dict per run."""
     import jax
     import numpy as np
 
@@ -61,7 +80,7 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
          f"{duration} s per robot")
     emit(HEADER)
     cassie = cassie_plant.cassie()
-    rows = []
+    rows, admm_rows = [], []
     for B in batches:
         batch, static = rollout.build(configs(B, duration))
         T = float(np.asarray(batch.t_ssp[0] + batch.t_dsp[0]))
@@ -76,12 +95,17 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
             devs = jax.devices()[:n_dev]
             placed = rollout.place(batch, rollout.scenario_sharding(devs))
             t0 = time.perf_counter()
-            with jax.default_matmul_precision("highest"):
-                out = rollout.run(placed, static)
-                jax.block_until_ready(out)
-                t1 = time.perf_counter()
-                out = rollout.run(placed, static)
-                jax.block_until_ready(out)
+            try:
+                with jax.default_matmul_precision("highest"):
+                    out = rollout.run(placed, static)
+                    jax.block_until_ready(out)
+                    t1 = time.perf_counter()
+                    out = rollout.run(placed, static)
+                    jax.block_until_ready(out)
+            except Exception as exc:  # noqa: BLE001 - e.g. out of accelerator memory
+                emit(f"batch {B} on {n_dev} device(s) failed: {type(exc).__name__}: "
+                     f"{str(exc).splitlines()[0][:200] if str(exc) else ''}")
+                continue
             t2 = time.perf_counter()
             peak = _peak_bytes(devs)
             runs.append((n_dev, t1 - t0, t2 - t1, np.asarray(out["status"]), peak))
@@ -103,4 +127,30 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
             emit(f"| {B} | {n_dev} | {static.n_steps} | {t_first:.1f} | {t_run:.2f} | "
                  f"{row['robot_s_per_s']:,.1f} | {rate:,.0f} | {prate:,.0f} | {row['ratio']:.2f} | "
                  f"{row['walking']:.3f} | {mem} |")
+        if admm:
+            from hlip_jax.plants.cassie import clfqp
+            full = clfqp.DEFAULT_SETTINGS.max_iter
+            short = clfqp.DEFAULT_SETTINGS.check_interval
+            b2, s2 = rollout.build(configs(B, duration, qp_max_iter=short))
+            placed = rollout.place(b2, rollout.scenario_sharding(jax.devices()[:1]))
+            try:
+                with jax.default_matmul_precision("highest"):
+                    jax.block_until_ready(rollout.run(placed, s2))
+                    t0 = time.perf_counter()
+                    jax.block_until_ready(rollout.run(placed, s2))
+            except Exception as exc:  # noqa: BLE001
+                emit(f"batch {B}, ADMM budget {short}: failed: {type(exc).__name__}")
+                continue
+            t_short = time.perf_counter() - t0
+            one = [r for r in rows if r["batch"] == B and r["devices"] == 1]
+            if one:
+                share = admm_share(one[0]["run_s"], t_short, full, short)
+                one[0].update(admm_share=share, run_s_short_qp=t_short)
+                admm_rows.append(f"| {B} | {full} | {one[0]['run_s']:.2f} | "
+                                 f"{one[0]['physics_steps_per_s']:,.0f} | {share:.2f} |")
+                admm_rows.append(f"| {B} | {short} | {t_short:.2f} | {B * steps / t_short:,.0f} | |")
+    if admm_rows:
+        emit(ADMM_HEADER)
+        for r in admm_rows:
+            emit(r)
     return rows

@@ -133,6 +133,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulated seconds per robot (> 0)")
     b.add_argument("--devices", type=_positive_int, nargs="+", default=[1], metavar="N",
                    help="device counts: the same batch sharded over the first N local devices")
+    b.add_argument("--admm", action="store_true",
+                   help="also time each batch with the CLF-QP's ADMM budget cut to one "
+                   "convergence check and report the ADMM iterations' share of the tick")
     b.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
     return ap
 
@@ -233,7 +236,7 @@ def cmd_bench(args) -> int:
     import json
 
     from hlip_jax import bench
-    rows = bench.closed_loop(args.batch, args.duration, args.devices)
+    rows = bench.closed_loop(args.batch, args.duration, args.devices, admm=args.admm)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return EXIT_OK

@@ -134,6 +134,12 @@ class CassieConfig:
     omega_yaw: float = spec(6.982, 0.5, 50.0, "swing-foot yaw output frequency", "rad/s")
     weight_com: float = spec(2.563, 0.0, 10.0, "QP tracking weight of the COM horizontal output")
     weight_pelvis: float = spec(5.0, 0.0, 10.0, "QP tracking weight of the pelvis orientation outputs")
+    qp_max_iter: int = spec(150, 25, 5000, "ADMM iteration budget of the CLF-QP per control tick "
+                            "(static: one compile per value, equal across a batch)")
+    qp_eps: float = spec(1e-4, 1e-8, 1e-1, "ADMM absolute and relative tolerance of the CLF-QP (static)")
+    qp_fallback: str = spec("hold", doc="torques of a tick whose CLF-QP the ADMM budget did not solve: "
+                            "the previous tick's ('hold') or the last iterate clipped to the limits ('iterate')",
+                            choices=("hold", "iterate"))
 
 
 @dataclass(frozen=True)

@@ -353,12 +353,35 @@ def _blocked(fn, x, chunk, n_facets):
 
 
 def _zono_volume(z: Zonotope):
-    G = jnp.asarray(z.generators)
+    """2ⁿ Σ_{i<j<…} |det[g_i, g_j, …]| without listing the subsets: n = 1 is Σ|g|; n = 2 sums
+    |g_i × g_j| over i < j; n = 3 sums |(g_i × g_j) · g_k| over i < j < k row by row (O(m³)
+    flops but O(m²) memory: 480 generators take ~0.2 s).  Larger n: the subset list."""
+    if isinstance(z.generators, jax.core.Tracer):
+        G = jnp.asarray(z.generators)
+        m, n = G.shape
+        if m < n:
+            return jnp.zeros((), G.dtype)
+        idx = np.array(list(itertools.combinations(range(m), n)), dtype=np.int32)
+        return (2.0 ** n) * jnp.sum(jnp.abs(jnp.linalg.det(G[idx])))
+    G = _f64(z.generators)
     m, n = G.shape
     if m < n:
-        return jnp.zeros((), G.dtype)
-    idx = np.array(list(itertools.combinations(range(m), n)), dtype=np.int32)
-    return (2.0 ** n) * jnp.sum(jnp.abs(jnp.linalg.det(G[idx])))
+        return np.float64(0.0)
+    if n == 1:
+        total = np.abs(G[:, 0]).sum()
+    elif n == 2:
+        D = np.abs(np.outer(G[:, 0], G[:, 1]) - np.outer(G[:, 1], G[:, 0]))
+        total = np.triu(D, 1).sum()
+    elif n == 3:
+        total = 0.0
+        for i in range(m - 2):
+            C = np.cross(G[i], G[i + 1:])                      # (m−i−1, 3): g_i × g_j, j > i
+            D = np.abs(C @ G[i + 1:].T)                         # |(g_i × g_j) · g_k|
+            total += np.triu(D, 1).sum()                        # k > j
+    else:
+        idx = np.array(list(itertools.combinations(range(m), n)), dtype=np.int32)
+        total = np.abs(np.linalg.det(G[idx])).sum()
+    return np.float64((2.0 ** n) * total)
 
 
 # ---------------------------------------------------------------------------------------------

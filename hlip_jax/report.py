@@ -494,8 +494,8 @@ def write_report(out_dir) -> tuple[Path, Path]:
 
     doc.h(2, "Per-scenario summary")
     cols = ["index", "name", "status", "rms_track_err", "max_track_err", "final_pos_err",
-            "cov_x_outer", "cov_y_outer", "cov_x_heldout", "cov_y_heldout", "qp_failures",
-            "min_clearance"]
+            "cov_x_outer", "cov_y_outer", "cov_x_heldout", "cov_y_heldout", "e_size_x",
+            "e_size_y", "qp_failures", "min_clearance"]
     doc.p(f"All columns in summary.csv ({len(rows)} rows); errors in m.")
     doc.table(cols, [[_fmt(r.get(c, "")) for c in cols] for r in rows[:MAX_TABLE_ROWS]])
     if len(rows) > MAX_TABLE_ROWS:

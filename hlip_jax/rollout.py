@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Callable, NamedTuple, Sequence
+from typing import Callable, NamedTuple, Optional, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -59,6 +59,7 @@ class Static(NamedTuple):
     horizon: int
     settings: qp.Settings
     plant: str
+    plant_settings: Optional[qp.Settings] = None   # the Cassie CLF-QP's ADMM settings
 
 
 class Log(NamedTuple):
@@ -189,7 +190,9 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
         for name, a, b in (("mpc.horizon", c.mpc.horizon, first.mpc.horizon),
                            ("mpc.qp_max_iter", c.mpc.qp_max_iter, first.mpc.qp_max_iter),
                            ("mpc.qp_eps", c.mpc.qp_eps, first.mpc.qp_eps),
-                           ("plant", c.plant, first.plant)):
+                           ("plant", c.plant, first.plant),
+                           ("cassie.qp_max_iter", c.cassie.qp_max_iter, first.cassie.qp_max_iter),
+                           ("cassie.qp_eps", c.cassie.qp_eps, first.cassie.qp_eps)):
             if a != b:
                 raise ValueError(f"{name} must be the same for every scenario of a batch "
                                  f"(it fixes shapes/compiled settings): got {a!r} and {b!r}")
@@ -241,7 +244,14 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
     settings = qp.Settings(eps_abs=first.mpc.qp_eps, eps_rel=first.mpc.qp_eps,
                            max_iter=first.mpc.qp_max_iter, check_interval=25,
                            adaptive_rho_interval=50)
-    return batch, Static(n_steps=K, horizon=horizon, settings=settings, plant=first.plant)
+    plant_settings = None
+    if first.plant == "cassie":
+        from hlip_jax.plants.cassie import clfqp
+        plant_settings = clfqp.DEFAULT_SETTINGS._replace(
+            max_iter=first.cassie.qp_max_iter, eps_abs=first.cassie.qp_eps,
+            eps_rel=first.cassie.qp_eps)
+    return batch, Static(n_steps=K, horizon=horizon, settings=settings, plant=first.plant,
+                         plant_settings=plant_settings)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -321,7 +331,10 @@ def simulate_one(scn: Scenario, static: Static):
         cmd = StepCommand(t=t_k, stance=stance_k, x_hlip=carry.x_h, u_hlip=carry.u_h,
                           x_hlip_next=x_h_next, u_hlip_next=u_h_next, gain=scn.gain,
                           heading=heading_next, t_ssp=scn.t_ssp, t_dsp=scn.t_dsp, z0=scn.z0)
-        pnext, res = plant.step(scn.plant, carry.pstate, cmd)
+        if static.plant_settings is None:
+            pnext, res = plant.step(scn.plant, carry.pstate, cmd)
+        else:
+            pnext, res = plant.step(scn.plant, carry.pstate, cmd, static.plant_settings)
         ref = paths.reference(scn.path, t_k)
         obs = scn.mpc.obstacles
         gap = jnp.linalg.norm(carry.x_r[:, 0][None, :] - obs[:, :2], axis=-1) - obs[:, 3]

@@ -32,6 +32,8 @@ Metrics (per scenario, over valid pre-impact samples k, i.e. steps before any fa
   state is [c, p, v] when the gain acts on c, else [p, v] (see :func:`error_model`).
 * ``cov_{x,y}_heldout``: W and E from the first half of the steps, coverage (outer set) of the
   errors in the second half.
+* ``e_size_{x,y}``: volume of that in-sample E (outer set; [m²·m/s] on [c, p, v], [m·m/s] on
+  [p, v]): the size of the error tube a gain earns on this run.
 * ``qp_failures``: valid steps whose MPC QP status is not 1 (solved).
 * ``min_clearance`` [m]: min obstacle clearance over valid steps (inf without obstacles).
 """
@@ -82,7 +84,7 @@ SUMMARY_METRICS = (
     "steps", "rms_track_err", "max_track_err", "rms_pos_err", "final_pos_err",
     "emax_x_c", "emax_x_p", "emax_x_v", "emax_y_c", "emax_y_p", "emax_y_v",
     "cov_x_inner", "cov_x_outer", "cov_x_heldout", "cov_y_inner", "cov_y_outer", "cov_y_heldout",
-    "qp_failures", "min_clearance",
+    "qp_failures", "min_clearance", "e_size_x", "e_size_y",
 )
 
 
@@ -318,7 +320,8 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
     nK = int(mask.sum())
     half = nK // 2
     for p, plane in enumerate("xy"):
-        keys = [f"cov_{plane}_inner", f"cov_{plane}_outer", f"cov_{plane}_heldout"]
+        keys = [f"cov_{plane}_inner", f"cov_{plane}_outer", f"cov_{plane}_heldout",
+                f"e_size_{plane}"]
         for k in keys:
             out[k] = math.nan
         Acl = A + np.outer(B, Kg[p])
@@ -329,6 +332,7 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
             E = inv.mrpi(Acl, W, min_halfwidth=W_MIN_HALFWIDTH)
             c = inv.coverage(E, e[:, p], mask)
             out[keys[0]], out[keys[1]] = c.inner, c.outer
+            out[keys[3]] = float(E.volume())
             tr = wmask & (np.arange(wmask.size) + 1 < half)
             te = mask & (np.arange(mask.size) >= half)
             if tr.sum() >= 1 and te.sum() >= 1:
@@ -413,6 +417,9 @@ def write_summary(out_dir) -> Path:
             row["status"] = STATUS_NAMES.get(st, str(st))
             row["fail_step"] = int(z["fail_step"][j])
             for k in SUMMARY_METRICS:
+                if f"metric.{k}" not in z:      # a chunk written before the metric existed
+                    row[k] = math.nan
+                    continue
                 v = z[f"metric.{k}"][j]
                 row[k] = int(v) if k in ("steps", "qp_failures") else float(v)
             rows[i] = row

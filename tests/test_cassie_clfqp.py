@@ -183,7 +183,8 @@ def _stand(cassie, stand_chunk, d, pushes, seconds):
 
 
 def _batch(cassie, n, noise, seed):
-    d = model.make_batch(cassie, n, jax.random.PRNGKey(seed), qpos_noise=noise, forward=False)
+    d = model.make_batch(cassie, n, jax.random.PRNGKey(seed), qpos_noise=noise, forward=False,
+                         consistent=noise > 0)
     return jax.jit(jax.vmap(lambda x: control.canonical(cassie, x)))(d)
 
 

@@ -230,6 +230,40 @@ def test_jdot_qdot_matches_finite_differences(cassie, terms_fn):
     np.testing.assert_allclose(T.loop_jdqd, _fd_jdot_qdot(m, d, loop_J), atol=1e-6)
 
 
+def test_stance_projection_closes_chains_and_grounds_feet(cassie):
+    """Random ±0.03 rad hinge offsets open the chains by up to ~2 cm; after the projection C
+    MuJoCo's own equality residuals (efc_pos of the connect rows, not the code under test) and
+    the contact-sphere heights are zero to 1e-8 m (the Gauss–Newton stops at 1e-9 m; float64
+    kinematics is exact to ~1e-15 m), and the keyframe (already consistent) is unchanged."""
+    m = cassie.mj_model
+    key = m.key_qpos[cassie.index.stand_key].copy()
+    q, res = cm.stance_projection(cassie, key[None])
+    assert np.abs(q[0] - key).max() < 1e-7 and res[0] < 1e-8
+    rng = np.random.default_rng(5)
+    hinge = [m.jnt_qposadr[j] for j in range(m.njnt) if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE]
+    Q = np.repeat(key[None], 6, 0)
+    Q[:, hinge] += rng.uniform(-0.03, 0.03, (6, len(hinge)))
+    P, res = cm.stance_projection(cassie, Q)
+    assert np.all(res < 1e-8)
+    d = mujoco.MjData(m)
+    opened = []
+    for q0, q1 in zip(Q, P):
+        for q, check in ((q0, False), (q1, True)):
+            d.qpos[:] = q
+            d.qvel[:] = 0
+            mujoco.mj_forward(m, d)
+            eq = d.efc_type == mujoco.mjtConstraint.mjCNSTR_EQUALITY
+            z = d.site_xpos[list(cassie.index.contact_sites), 2] - cm.FOOT_SPHERE_RADIUS
+            if check:
+                assert np.abs(d.efc_pos[eq]).max() < 1e-8 and np.abs(z).max() < 1e-8
+                assert abs(np.linalg.norm(q[3:7]) - 1) < 1e-12
+            else:
+                opened.append(max(np.abs(d.efc_pos[eq]).max(), np.abs(z).max()))
+    assert max(opened) > 1e-3                       # the offsets did open the chains
+    # the minimum-norm correction keeps the configurations random (and distinct)
+    assert np.all(np.abs(P[:, hinge] - key[hinge]).max(axis=1) > 0.005)
+
+
 def test_c_mujoco_equality_reference_includes_jdot_qdot(cassie, terms_fn):
     """C MuJoCo 4.x writes the connect rows' reference acceleration as
     aref = −b·(J q̇) − k·imp·r − J̇q̇; MJX 3.17 omits the −J̇q̇ term. Checking the C rows

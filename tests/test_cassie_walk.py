@@ -107,6 +107,16 @@ def test_make_params_pushes_and_validation():
     np.testing.assert_allclose(g.gains.kd[6:14], 40.0)
     with pytest.raises(ValueError, match="pushes"):
         plant.make_params(cfg, 0)
+    # the CLF-QP fallback is data too; its ADMM budget and tolerance are static sweep-wide
+    assert float(g.hold_unsolved) == 1.0
+    cfg3 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_fallback="iterate", qp_max_iter=50))
+    assert float(plant.make_params(cfg3, 1).gait.hold_unsolved) == 0.0
+    from hlip_jax import rollout
+    _, static = rollout.build([cfg3])
+    assert static.plant_settings.max_iter == 50 and static.plant_settings.eps_abs == 1e-4
+    with pytest.raises(ValueError, match="cassie.qp_max_iter"):
+        rollout.build([cfg2, cfg3])
+    assert rollout.build([ScenarioConfig()])[1].plant_settings is None     # H-LIP plant
 
 
 @pytest.mark.slow

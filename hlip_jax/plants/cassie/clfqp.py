@@ -165,11 +165,12 @@ class Result(NamedTuple):
 
 
 def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
-          settings: qp.Settings = DEFAULT_SETTINGS, fallback: bool = False) -> Result:
+          settings: qp.Settings = DEFAULT_SETTINGS, fallback=False) -> Result:
     """Build and solve the CLF-QP; ``warm`` = (x, y) from the previous tick (zeros at start).
 
-    ``fallback`` (static): when the QP is not solved, return the previous tick's solution
-    (used while walking; standing push recovery does better with the clipped last iterate)."""
+    ``fallback`` (bool or traced boolean scalar): when the QP is not solved, return the previous
+    tick's solution instead of the clipped last iterate (per scenario while walking:
+    ``CassieConfig.qp_fallback``; standing push recovery does better with the iterate)."""
     prob = build(meas, des, cond, contact, tau_min, tau_max, gains)
     sol = qp.solve(prob.P, prob.q, prob.A, prob.l, prob.u, settings=settings, warm_start=warm)
     # with ``fallback`` a problem the ADMM budget did not solve (typically infeasible contact
@@ -177,7 +178,7 @@ def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
     # without it only a non-finite iterate falls back
     finite = jnp.all(jnp.isfinite(sol.x)) & jnp.all(jnp.isfinite(sol.y))
     solved = (sol.status == qp.SOLVED) | (sol.status == qp.SOLVED_INACCURATE)
-    ok = finite & solved if fallback else finite
+    ok = finite & (solved | jnp.logical_not(fallback))
     x = jnp.where(ok, sol.x, warm[0])
     y = jnp.where(ok, sol.y, warm[1])
     nu = prob.P.shape[0] - 1

@@ -228,8 +228,59 @@ def load(path: Optional[str | pathlib.Path] = None, impl: str = "jax") -> Cassie
 # ----------------------------------------------------------------------------- data
 
 
+def stance_projection(cassie: Cassie, qpos: np.ndarray, tol: float = 1e-9,
+                      max_iter: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """Close the chains and put both soles flat on the floor, changing ``qpos`` (B, nq) as
+    little as possible (C MuJoCo, numpy).
+
+    Constraints c(q) = 0: the 4 connect loops (12 rows, anchor of body 1 minus anchor of body 2,
+    world frame) and the height of the 4 contact-sphere centres above the floor minus their
+    radius (4 rows).  Gauss–Newton with the minimum-norm step in velocity coordinates,
+    Δv = −J⁺ c(q), q ← q ⊕ Δv (``mj_integratePos``, so the pelvis quaternion stays unit), until
+    ‖c‖∞ ≤ ``tol`` [m].  Returns (projected qpos, final ‖c‖∞ per robot [m]).
+
+    Random hinge offsets alone leave the loops open and the feet inside or above the floor; the
+    simulator then snaps them in the first milliseconds with constraint forces no controller
+    sees coming.  The projection makes a randomised *consistent* standing state instead.
+    """
+    m = cassie.mj_model
+    d = mujoco.MjData(m)
+    qpos = np.array(qpos, float, copy=True).reshape(-1, m.nq)
+    loops = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, n) for n in LOOPS]
+    sites = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, n) for n in CONTACT_SITES]
+    jp1, jp2 = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+    res = np.zeros(len(qpos))
+    for b in range(len(qpos)):
+        d.qpos[:] = qpos[b]
+        for _ in range(max_iter):
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            c, J = [], []
+            for e in loops:
+                b1, b2 = m.eq_obj1id[e], m.eq_obj2id[e]
+                p1 = d.xpos[b1] + d.xmat[b1].reshape(3, 3) @ m.eq_data[e, 0:3]
+                p2 = d.xpos[b2] + d.xmat[b2].reshape(3, 3) @ m.eq_data[e, 3:6]
+                mujoco.mj_jac(m, d, jp1, None, p1, b1)
+                mujoco.mj_jac(m, d, jp2, None, p2, b2)
+                c.append(p1 - p2)
+                J.append(jp1 - jp2)
+            for s in sites:
+                mujoco.mj_jacSite(m, d, jp1, None, s)
+                c.append([d.site_xpos[s, 2] - FOOT_SPHERE_RADIUS])
+                J.append(jp1[2:3].copy())
+            c, J = np.concatenate(c), np.concatenate(J)
+            res[b] = np.abs(c).max()
+            if res[b] <= tol:
+                break
+            dv = -np.linalg.lstsq(J, c, rcond=None)[0]
+            mujoco.mj_integratePos(m, d.qpos, dv, 1.0)
+        qpos[b] = d.qpos
+    return qpos, res
+
+
 def make_batch(cassie: Cassie, batch_size: int, key: jax.Array, qpos_noise: float = 0.0,
-               qvel_noise: float = 0.0, forward: bool = False) -> mjx.Data:
+               qvel_noise: float = 0.0, forward: bool = False,
+               consistent: bool = False) -> mjx.Data:
     """Batched ``mjx.Data`` (leading axis ``batch_size``) at the "stand" keyframe.
 
     Args:
@@ -240,6 +291,8 @@ def make_batch(cassie: Cassie, batch_size: int, key: jax.Array, qpos_noise: floa
         this much times the link lengths; the constraint solver pulls them shut in the first
         few milliseconds of simulation.
       qvel_noise: half-width [m/s or rad/s] of uniform offsets added to every dof velocity.
+      consistent: pass the offset configurations through :func:`stance_projection` (chains
+        closed, both soles flat on the floor; the offsets stay up to the minimum-norm change).
       forward: run ``mjx.forward`` (vmapped, one extra compile) so the derived fields
         (positions, contacts, qacc) belong to the offset state; by default they are those of
         the unperturbed keyframe (``mjx.step`` and :func:`smooth` recompute them anyway).
@@ -260,6 +313,8 @@ def make_batch(cassie: Cassie, batch_size: int, key: jax.Array, qpos_noise: floa
     qpos = jnp.broadcast_to(dx.qpos, (batch_size, m.nq))
     dq = jax.random.uniform(k1, (batch_size, hinge.size), dtype, -qpos_noise, qpos_noise)
     qpos = qpos.at[:, hinge].add(dq)
+    if consistent:
+        qpos = jnp.asarray(stance_projection(cassie, np.asarray(qpos))[0], dtype)
     qvel = jax.random.uniform(k2, (batch_size, m.nv), dtype, -qvel_noise, qvel_noise)
     batch = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (batch_size,) + x.shape), dx)
     batch = batch.replace(qpos=qpos, qvel=qvel)

@@ -78,6 +78,7 @@ class Gait(NamedTuple):
     assist_ssp: jax.Array
     assist_dsp: jax.Array
     turn_max: jax.Array
+    hold_unsolved: jax.Array   # 1.0: an unsolved CLF-QP keeps the previous torques, 0.0: last iterate
     gains: clfqp.Gains
 
 
@@ -105,7 +106,8 @@ def make_gait(cfg=None) -> Gait:
              step_length_max=f(cfg.step_length_max), step_width_min=f(cfg.step_width_min),
              step_width_max=f(cfg.step_width_max), foot_torque=f(cfg.foot_torque),
              assist_ssp=f(cfg.assist_ssp), assist_dsp=f(cfg.assist_dsp),
-             turn_max=f(np.deg2rad(cfg.turn_max)), gains=clfqp.make_gains(omega, weight=weight))
+             turn_max=f(np.deg2rad(cfg.turn_max)),
+             hold_unsolved=f(cfg.qp_fallback == "hold"), gains=clfqp.make_gains(omega, weight=weight))
     _GAIT_CACHE[cfg] = g
     return g
 
@@ -216,7 +218,8 @@ class TickLog(NamedTuple):
     status: jax.Array
 
 
-def step_with_log(params: Params, state: State, cmd: StepCommand):
+def step_with_log(params: Params, state: State, cmd: StepCommand,
+                  settings=clfqp.DEFAULT_SETTINGS):
     """:func:`step` that also returns the per-tick log (for plots and tests)."""
     c = cassie()
     d0 = state.d
@@ -353,7 +356,8 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
             lo = lo.at[foot_motor[s]].multiply(lim)
             hi = hi.at[foot_motor[s]].multiply(lim)
         cond = dynamics.condense(terms, c.actuation, contact, springs)
-        res = clfqp.solve(meas, des, cond, contact, lo, hi, gains, carry.warm, fallback=True)
+        res = clfqp.solve(meas, des, cond, contact, lo, hi, gains, carry.warm, settings,
+                          fallback=gait.hold_unsolved > 0.5)
         # ---- push and physics
         t_abs = state.time + tau_t
         on = (t_abs >= params.push_start) & (t_abs < params.push_end)
@@ -394,9 +398,10 @@ def step_with_log(params: Params, state: State, cmd: StepCommand):
     return new, StepResult(x_robot=x_r, u_robot=u_robot, failed=failed), log
 
 
-def step(params: Params, state: State, cmd: StepCommand):
-    """One walking step SSP⁻_k → SSP⁻_{k+1} (module doc). Returns (state, StepResult)."""
-    new, res, _ = step_with_log(params, state, cmd)
+def step(params: Params, state: State, cmd: StepCommand, settings=clfqp.DEFAULT_SETTINGS):
+    """One walking step SSP⁻_k → SSP⁻_{k+1} (module doc); ``settings`` (static) are the
+    CLF-QP's ADMM settings.  Returns (state, StepResult)."""
+    new, res, _ = step_with_log(params, state, cmd, settings)
     return new, res
 
 
@@ -503,7 +508,7 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
     if pushes is not None:
         for i, (t0, t1, fx, fy) in enumerate(pushes):
             params.push_start[:, i], params.push_end[:, i] = t0, t1
-            params.push_force[:, i] = (fx, fy)
+            params.push_force[:, i] = np.stack(np.broadcast_arrays(fx, fy), -1)
     params = jax.tree.map(jnp.asarray, params)
     x0 = jnp.zeros((2, 3))
     one = init(None, x0, None, None, jax.random.PRNGKey(0))       # every robot starts alike
