@@ -84,7 +84,6 @@ def test_only_feet_collide(cassie):
 
 def test_actuation_matrix_matches_qfrc_actuator(cassie):
     # independent: C MuJoCo's actuator force mapping for a random ctrl
-    m = cassie.mj_model
     d = _random_state(cassie, np.random.default_rng(3))
     np.testing.assert_allclose(cassie.actuation @ d.ctrl, d.qfrc_actuator, atol=1e-12)
     np.testing.assert_allclose(cassie.joint_torque_limit, [112.5, 112.5, 195.2, 195.2, 45.0] * 2)

@@ -15,7 +15,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import numpy as np
 import pytest
 
 from hlip_jax import rollout, store, sweep
