@@ -67,6 +67,8 @@ class GainConfig:
     q_p: float = spec(1.0, 0.0, 1e6, "LQR weight on p")
     q_v: float = spec(1.0, 0.0, 1e6, "LQR weight on v")
     r: float = spec(1.0, 1e-9, 1e6, "LQR weight on the step size")
+    lateral: str = spec("same", doc="lateral (y) plane gain: the same design as the sagittal "
+                        "plane, or deadbeat on the same state", choices=("same", "deadbeat"))
 
 
 @dataclass(frozen=True)

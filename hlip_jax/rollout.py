@@ -19,6 +19,7 @@ a robot that falls is frozen from that step on and marked; neither touches other
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from typing import NamedTuple, Optional, Sequence
@@ -96,6 +97,13 @@ def stepping_gain(cfg: ScenarioConfig) -> np.ndarray:
 
 
 def _stepping_gain(h, g) -> np.ndarray:
+    K = _plane_gain(h, g)
+    if g.lateral == "deadbeat" and g.type != "deadbeat":
+        K[1] = _plane_gain(h, dataclasses.replace(g, type="deadbeat"))[1]
+    return K
+
+
+def _plane_gain(h, g) -> np.ndarray:
     if g.with_position:
         if g.type == "deadbeat":
             k = hlip.deadbeat_gain(h.z0, h.t_ssp, h.t_dsp, h.g, with_position=True)

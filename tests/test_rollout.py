@@ -187,3 +187,22 @@ def test_measured_mode_runs(run):
     i = _idx(run, "measured")
     assert log.status[i] == rollout.STATUS_OK
     assert _path_error(log, i).mean() <= 0.10
+
+
+def test_stepping_gain_per_plane():
+    """``gain.lateral = "deadbeat"`` replaces only the y row by the deadbeat gain (closed form:
+    A + B K nilpotent, checked through its spectral radius: |λ| < 1e-4, since the eigenvalues of a
+    nilpotent 3×3 matrix are only accurate to about ε^(1/3) ≈ 6e-6 times its norm); the x row
+    stays the LQR gain."""
+    from hlip_jax import hlip
+    from hlip_jax.config import GainConfig, HLIPConfig, ScenarioConfig
+    h = HLIPConfig(z0=0.85, t_ssp=0.26, t_dsp=0.02)
+    lqr = GainConfig(type="lqr", q_c=0.05, q_v=0.25, r=4.0)
+    K0 = rollout.stepping_gain(ScenarioConfig(hlip=h, gain=lqr))
+    K1 = rollout.stepping_gain(ScenarioConfig(hlip=h, gain=GainConfig(
+        type="lqr", q_c=0.05, q_v=0.25, r=4.0, lateral="deadbeat")))
+    np.testing.assert_array_equal(K1[0], K0[0])
+    np.testing.assert_array_equal(K0[0], K0[1])
+    A, B = (np.asarray(a, np.float64) for a in hlip.s2s_matrices(0.85, 0.26, 0.02))
+    assert np.abs(np.linalg.eigvals(A + np.outer(B, K1[1]))).max() < 1e-4
+    assert np.abs(np.linalg.eigvals(A + np.outer(B, K1[0]))).max() > 0.1     # LQR: not deadbeat
