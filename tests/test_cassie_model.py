@@ -244,6 +244,11 @@ def test_stance_projection_closes_chains_and_grounds_feet(cassie):
     Q[:, hinge] += rng.uniform(-0.03, 0.03, (6, len(hinge)))
     P, res = cm.stance_projection(cassie, Q)
     assert np.all(res < 1e-8)
+    # the residual returned is the one of the configuration returned: after a single
+    # Gauss–Newton step it is smaller than at the start but not yet converged
+    _, r0 = cm.stance_projection(cassie, Q, max_iter=0)
+    _, r1 = cm.stance_projection(cassie, Q, max_iter=1)
+    assert np.all(r1 < r0) and r1.max() > 1e-9
     d = mujoco.MjData(m)
     opened = []
     for q0, q1 in zip(Q, P):

@@ -252,7 +252,7 @@ def stance_projection(cassie: Cassie, qpos: np.ndarray, tol: float = 1e-9,
     res = np.zeros(len(qpos))
     for b in range(len(qpos)):
         d.qpos[:] = qpos[b]
-        for _ in range(max_iter):
+        for it in range(max_iter + 1):
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             c, J = [], []
@@ -270,7 +270,7 @@ def stance_projection(cassie: Cassie, qpos: np.ndarray, tol: float = 1e-9,
                 J.append(jp1[2:3].copy())
             c, J = np.concatenate(c), np.concatenate(J)
             res[b] = np.abs(c).max()
-            if res[b] <= tol:
+            if res[b] <= tol or it == max_iter:
                 break
             dv = -np.linalg.lstsq(J, c, rcond=None)[0]
             mujoco.mj_integratePos(m, d.qpos, dv, 1.0)
@@ -314,7 +314,13 @@ def make_batch(cassie: Cassie, batch_size: int, key: jax.Array, qpos_noise: floa
     dq = jax.random.uniform(k1, (batch_size, hinge.size), dtype, -qpos_noise, qpos_noise)
     qpos = qpos.at[:, hinge].add(dq)
     if consistent:
-        qpos = jnp.asarray(stance_projection(cassie, np.asarray(qpos))[0], dtype)
+        proj, res = stance_projection(cassie, np.asarray(qpos))
+        if np.any(res > 1e-6):
+            raise ValueError(f"qpos_noise = {qpos_noise}: {int(np.sum(res > 1e-6))} of {batch_size} "
+                             f"offset configurations cannot be projected onto closed chains with "
+                             f"both feet on the floor (residual up to {res.max():.3g} m); use a "
+                             f"smaller qpos_noise (0.03 rad projects to 1e-9 m)")
+        qpos = jnp.asarray(proj, dtype)
     qvel = jax.random.uniform(k2, (batch_size, m.nv), dtype, -qvel_noise, qvel_noise)
     batch = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (batch_size,) + x.shape), dx)
     batch = batch.replace(qpos=qpos, qvel=qvel)
