@@ -43,6 +43,7 @@ def main(argv=None):
         jax.config.update("jax_enable_x64", True)
     import numpy as np
     from hlip_jax import rollout
+    from hlip_jax.bench import timed_run
 
     dev = jax.devices()[0]
     print(f"backend {jax.default_backend()} device {dev.device_kind} | {platform.processor() or platform.machine()}"
@@ -53,18 +54,12 @@ def main(argv=None):
         cfgs = mixed_configs(b, args.duration)
         t0 = time.perf_counter()
         batch, static = rollout.build(cfgs)
-        t1 = time.perf_counter()
-        with jax.default_matmul_precision("highest"):
-            out = rollout.run(batch, static)
-            jax.block_until_ready(out)
-            t2 = time.perf_counter()
-            out = rollout.run(batch, static)
-            jax.block_until_ready(out)
-        t3 = time.perf_counter()
+        t_build = time.perf_counter() - t0
+        t_first, t_run, out = timed_run(batch, static)
         steps = static.n_steps
         ok = float(np.mean(np.asarray(out["status"]) == rollout.STATUS_OK))
-        print(f"| {b} | {steps} | {t1 - t0:.1f} | {t2 - t1:.1f} | {t3 - t2:.2f} | "
-              f"{b * steps / (t3 - t2):,.0f} | {ok:.3f} |", flush=True)
+        print(f"| {b} | {steps} | {t_build:.1f} | {t_first:.1f} | {t_run:.2f} | "
+              f"{b * steps / t_run:,.0f} | {ok:.3f} |", flush=True)
 
 
 if __name__ == "__main__":
