@@ -115,6 +115,9 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
                      f"{str(exc).splitlines()[0][:200] if str(exc) else ''}")
                 continue
             peak = _peak_bytes(devs)
+            # a partial result survives a later failure or a time limit
+            emit(f"batch {B} on {n_dev} device(s): compile + first {t_first:.1f} s, "
+                 f"run {t_run:.2f} s, {B * steps / t_run:,.0f} physics steps/s")
             runs.append((n_dev, t_first, t_run, np.asarray(out["status"]), peak))
         d = model.make_batch(cassie, B, jax.random.PRNGKey(0))
         physics_only = jax.jit(jax.vmap(lambda d: control.zero_torque_rollout(cassie, d, ticks)))
