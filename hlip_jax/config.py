@@ -128,6 +128,12 @@ class CassieConfig:
     foot_torque: float = spec(0.8407, 0.0, 1.0, "foot-motor torque budget of a foot on the ground, fraction of its limit (0 = passive pivot)")
     assist_ssp: float = spec(1.289, 0.0, 10.0, "factor on the COM-follows-H-LIP output's weight in SSP, along the heading (0 = off)")
     assist_dsp: float = spec(2.189, 0.0, 10.0, "factor on the COM-follows-H-LIP output's weight in DSP, both directions (0 = off)")
+    recovery_speed: float = spec(0.0, 0.0, 5.0, "lateral velocity error at SSP⁻ (across the heading) above which the "
+                                 "step across the heading blends from the stepping gain to the H-LIP deadbeat gain on [p, v], "
+                                 "fully at twice the value (0 = off)", "m/s")
+    hurry: float = spec(1.0, 1.0, 4.0, "largest speed-up of the swing phase when the stepping law wants the swing foot "
+                        "more than 5 cm inward of the narrowest step width (full at 15 cm; a push towards the stance "
+                        "side): the early touchdown brings the other foot's outward step sooner (1 = off)")
     turn_max: float = spec(15.0, 0.5, 90.0, "largest change of the pelvis / swing-foot heading target per step", "deg")
     omega_pelvis: float = spec(4.429, 0.5, 50.0, "pelvis orientation output frequency", "rad/s")
     omega_height: float = spec(5.324, 0.5, 50.0, "COM height output frequency", "rad/s")

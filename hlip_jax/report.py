@@ -68,6 +68,13 @@ def _fmt(v, digits=4) -> str:
 # figures of one scenario
 
 
+def _isnan(v) -> bool:
+    try:
+        return math.isnan(float(v))
+    except (TypeError, ValueError):
+        return True
+
+
 def _mask(log, s=0):
     return np.cumprod(np.asarray(log["valid"][s], bool)).astype(bool)
 
@@ -490,6 +497,17 @@ def write_report(out_dir) -> tuple[Path, Path]:
                    for r in bad[:MAX_TABLE_ROWS]])
     else:
         doc.p("none: every scenario finished ok.")
+
+    pushed = [r for r in rows if not _isnan(r.get("push_peak_err", math.nan))]
+    if pushed:
+        doc.h(2, f"Pushes ({len(pushed)})")
+        doc.p(f"Largest COM-to-path distance from the first push on, and the steps until the "
+              f"COM is back within {store.RECOVERY_TOL} m of the path and stays there to the end "
+              f"(– : fell, or not back by the end).")
+        doc.table(["#", "scenario", "status", "peak distance [m]", "steps to recover"],
+                  [[r["index"], r["name"], r["status"], _fmt(r["push_peak_err"]),
+                    "–" if _isnan(r.get("push_recovery_steps", math.nan))
+                    else int(r["push_recovery_steps"])] for r in pushed[:MAX_TABLE_ROWS]])
 
     doc.h(2, "Per-scenario summary")
     cols = ["index", "name", "status", "rms_track_err", "max_track_err", "final_pos_err",

@@ -34,6 +34,12 @@ Metrics (per scenario, over valid pre-impact samples k, i.e. steps before any fa
   errors in the second half.
 * ``e_size_{x,y}``: volume of that in-sample E (outer set; [m²·m/s] on [c, p, v], [m·m/s] on
   [p, v]): the size of the error tube a gain earns on this run.
+* ``push_peak_err`` [m]: largest COM-to-path distance from the first push's start on
+  (NaN without a push).
+* ``push_recovery_steps``: steps from the first pre-impact sample at or after the first push's
+  start until the COM-to-path distance is within ``RECOVERY_TOL`` (0.15 m) and stays within it
+  to the end of the run (0 if it never left; NaN without a push, after a failure, or when it is
+  not back by the end).
 * ``qp_failures``: valid steps whose MPC QP status is not 1 (solved).
 * ``min_clearance`` [m]: min obstacle clearance over valid steps (inf without obstacles).
 """
@@ -84,8 +90,13 @@ SUMMARY_METRICS = (
     "steps", "rms_track_err", "max_track_err", "rms_pos_err", "final_pos_err",
     "emax_x_c", "emax_x_p", "emax_x_v", "emax_y_c", "emax_y_p", "emax_y_v",
     "cov_x_inner", "cov_x_outer", "cov_x_heldout", "cov_y_inner", "cov_y_outer", "cov_y_heldout",
-    "qp_failures", "min_clearance", "e_size_x", "e_size_y",
+    "qp_failures", "min_clearance", "e_size_x", "e_size_y", "push_peak_err",
+    "push_recovery_steps",
 )
+
+#: COM-to-path distance a pushed robot must return to and stay within [m] (the paper's push
+#: acceptance: back within 0.15 m of the path)
+RECOVERY_TOL = 0.15
 
 
 class StoreError(RuntimeError):
@@ -344,8 +355,30 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
     return out
 
 
-def scenario_metrics(log: dict, s: int, with_coverage: bool = True) -> dict:
-    """Summary metrics of scenario ``s`` of a log dict (see the module docstring)."""
+def push_recovery(d_path: np.ndarray, t: np.ndarray, t_push: float, failed: bool,
+                  tol: float = RECOVERY_TOL) -> tuple[float, float]:
+    """(peak distance, steps to recover) after a push starting at ``t_push`` [s], from the
+    COM-to-path distances ``d_path`` [m] at the valid pre-impact times ``t`` [s] (module
+    docstring); ``failed``: the run ended in a failure (no recovery counted)."""
+    after = np.flatnonzero(t >= t_push - 1e-9)
+    if after.size == 0:
+        return math.nan, math.nan
+    d = d_path[after]
+    peak = float(np.max(d))
+    if failed:
+        return peak, math.nan
+    out = np.flatnonzero(d > tol)
+    if out.size == 0:
+        return peak, 0.0
+    if out[-1] == d.size - 1:             # still outside at the end of the run
+        return peak, math.nan
+    return peak, float(out[-1] + 1)
+
+
+def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
+                     push_time: float | None = None) -> dict:
+    """Summary metrics of scenario ``s`` of a log dict (see the module docstring);
+    ``push_time`` [s]: start of the scenario's first push (None: no push)."""
     valid = np.asarray(log["valid"][s], bool)
     mask = np.cumprod(valid).astype(bool)       # steps before any failure
     n = int(mask.sum())
@@ -364,6 +397,10 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True) -> dict:
     m["max_track_err"] = float(np.max(d_path))
     m["rms_pos_err"] = float(np.sqrt(np.mean(d_time ** 2)))
     m["final_pos_err"] = float(d_time[-1])
+    if push_time is not None:
+        t = np.asarray(log["t"][s], np.float64)[mask]
+        m["push_peak_err"], m["push_recovery_steps"] = push_recovery(
+            d_path, t, push_time, failed=int(np.asarray(log["status"][s])) != 0)
     e = np.abs(np.asarray(log["e"][s], np.float64)[mask])            # (n, 2, 3)
     for p, plane in enumerate("xy"):
         for j, comp in enumerate("cpv"):
@@ -633,6 +670,11 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
     return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0)
 
 
+def _first_push(cfg) -> float | None:
+    pushes = [p for p in cfg.disturbance.pushes if p.force > 0 and p.duration > 0]
+    return min(p.time for p in pushes) if pushes else None
+
+
 def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, man):
     ran = skipped = 0
     for i, (a, b) in enumerate(ranges):
@@ -651,7 +693,8 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
                              f"{type(err).__name__}: {err}") from None
         arrays = _log_to_arrays(log, b - a)
         arrays["index"] = np.arange(a, b, dtype=np.int64)
-        mets = [scenario_metrics(arrays, s, with_coverage) for s in range(b - a)]
+        mets = [scenario_metrics(arrays, s, with_coverage, _first_push(chunk_cfgs[s]))
+                for s in range(b - a)]
         for k in SUMMARY_METRICS:
             arrays[f"metric.{k}"] = np.asarray([m[k] for m in mets], np.float64)
         save_npz_atomic(p, arrays)

@@ -107,6 +107,10 @@ def test_make_params_pushes_and_validation():
     np.testing.assert_allclose(g.gains.kd[6:14], 40.0)
     with pytest.raises(ValueError, match="pushes"):
         plant.make_params(cfg, 0)
+    # push-recovery settings are data; off by default
+    assert float(g.hurry) == 1.0 and float(g.recovery_speed) == 0.0
+    g4 = plant.make_params(ScenarioConfig(plant="cassie", cassie=CassieConfig(hurry=2.0, recovery_speed=0.3)), 1).gait
+    assert float(g4.hurry) == 2.0 and float(g4.recovery_speed) == 0.3
     # the CLF-QP fallback is data too; its ADMM budget and tolerance are static sweep-wide
     assert float(g.hold_unsolved) == 1.0
     cfg3 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_fallback="iterate", qp_max_iter=50))

@@ -318,3 +318,17 @@ def test_no_coverage_option(tmp_path):
     assert all(math.isfinite(r["rms_track_err"]) for r in rows)
     with pytest.raises(store.StoreError, match="coverage setting differs"):
         store.run_sweep(_tiny(), out, resume=True, progress=False, simulate=fake_simulate)
+
+
+def test_push_recovery_counts_steps_until_back_and_staying():
+    t = np.arange(10) * 0.5                       # pre-impact times [s]
+    d = np.array([0.05, 0.05, 0.05, 0.30, 0.20, 0.10, 0.16, 0.12, 0.10, 0.08])
+    # push at 1.2 s: samples from t = 1.5 on (index 3); outside 0.15 m last at index 6
+    peak, steps = store.push_recovery(d, t, 1.2, failed=False)
+    assert peak == 0.30 and steps == 4.0          # back at index 7 = 4 samples after index 3
+    assert store.push_recovery(d, t, 1.2, failed=True) == (0.30, pytest.approx(np.nan, nan_ok=True))
+    # never left the band: 0 steps; still outside at the end: NaN; push after the run: NaN
+    assert store.push_recovery(np.full(10, 0.1), t, 1.0, failed=False) == (0.1, 0.0)
+    peak, steps = store.push_recovery(np.r_[d[:-1], 0.2], t, 1.2, failed=False)
+    assert peak == 0.30 and np.isnan(steps)
+    assert all(np.isnan(store.push_recovery(d, t, 100.0, failed=False)))

@@ -17,6 +17,10 @@ One call of :func:`step` runs SSP⁻_k → SSP⁻_{k+1} as a ``lax.scan`` over 1
   H-LIP at the same SSP time (flow of ``cmd.x_hlip`` through its DSP and the step u_H,k); the
   error e(t) = x_R(t) − x_H(t) is carried to SSP⁻ by the LIP flow over the rest of the SSP
   (the same linear flow for both, so this is the pre-impact error the law's K is made for).
+  Recovery (``gait.recovery_speed`` v_r > 0): with e_v⊥ the pre-impact velocity error across
+  the heading, the step's component across the heading blends to the deadbeat law on [p, v],
+  u⊥ = (1 − α) (K e)⊥ + α (K_db e)⊥, α = clip(|e_v⊥| / v_r − 1, 0, 1): a soft (LQR) gain
+  spreads a push's velocity error over several steps while the LIP lets it grow.
   Outputs (:mod:`outputs`): pelvis roll/pitch 0 and yaw blended to the heading, COM height
   z0, swing foot x, y = (1 − c) x⁺ + c (stance + u_des), swing height profile, sole flat and
   swing-foot yaw (1 − c) yaw⁺ + c θ_d.
@@ -49,6 +53,8 @@ FALL_HEIGHT = 0.55        # [m] pelvis height below which the robot has fallen
 FALL_TILT = 0.7           # [rad] pelvis roll or pitch beyond which it has fallen
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
 COM_HEIGHT = (0.65, 0.9)  # [m] allowed COM height targets (z0 is clipped to it)
+HURRY_FROM = 0.05         # [m] width-limit excess of the wanted step where hurrying starts
+HURRY_SPAN = 0.10         # [m] further excess over which the phase rate reaches gait.hurry
 #: the gait's tunable parameters and their defaults live in :class:`hlip_jax.config.CassieConfig`
 #: and reach the controller as per-scenario data (:class:`Gait`)
 
@@ -78,6 +84,8 @@ class Gait(NamedTuple):
     assist_ssp: jax.Array
     assist_dsp: jax.Array
     turn_max: jax.Array
+    recovery_speed: jax.Array  # [m/s], 0 = off (see step_with_log)
+    hurry: jax.Array           # largest swing-phase rate, 1 = off (see step_with_log)
     hold_unsolved: jax.Array   # 1.0: an unsolved CLF-QP keeps the previous torques, 0.0: last iterate
     gains: clfqp.Gains
 
@@ -106,7 +114,8 @@ def make_gait(cfg=None) -> Gait:
              step_length_max=f(cfg.step_length_max), step_width_min=f(cfg.step_width_min),
              step_width_max=f(cfg.step_width_max), foot_torque=f(cfg.foot_torque),
              assist_ssp=f(cfg.assist_ssp), assist_dsp=f(cfg.assist_dsp),
-             turn_max=f(np.deg2rad(cfg.turn_max)),
+             turn_max=f(np.deg2rad(cfg.turn_max)), recovery_speed=f(cfg.recovery_speed),
+             hurry=f(cfg.hurry),
              hold_unsolved=f(cfg.qp_fallback == "hold"), gains=clfqp.make_gains(omega, weight=weight))
     _GAIT_CACHE[cfg] = g
     return g
@@ -210,12 +219,15 @@ def _fell(d):
 
 
 class TickLog(NamedTuple):
-    com: jax.Array
-    feet: jax.Array
-    tau: jax.Array
-    V: jax.Array
-    contact: jax.Array
-    status: jax.Array
+    com: jax.Array       # (3,) COM [m]
+    feet: jax.Array      # (2, 3) foot centres [m]
+    tau: jax.Array       # (10,) motor torques [N m]
+    V: jax.Array         # CLF value
+    contact: jax.Array   # (4,) contact sites in the constraint set
+    status: jax.Array    # CLF-QP status
+    pelvis: jax.Array    # (7,) pelvis position [m] and quaternion
+    rate: jax.Array      # swing phase rate dσ/dt (1 = unhurried)
+    u_des: jax.Array     # (2,) step the swing target aims at (stance-relative, world) [m]
 
 
 def step_with_log(params: Params, state: State, cmd: StepCommand,
@@ -243,6 +255,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
     dyaw = jnp.clip(outputs.wrap(cmd.heading - yaw_from), -gait.turn_max, gait.turn_max)
     heading = yaw_from + dyaw
     foot_yaw0 = terms0.foot_yaw
+    kd = hlip.deadbeat_gain(cmd.z0, cmd.t_ssp, cmd.t_dsp).astype(dt)   # [p, v] deadbeat
 
     class Carry(NamedTuple):
         d: mjx.Data
@@ -251,13 +264,16 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         sw_yaw0: jax.Array
         u_last: jax.Array        # (2,) last swing target step
         fell: jax.Array
+        gain_t: jax.Array        # σ − (time into SSP): time a hurried swing saved [s]
+        rate: jax.Array          # dσ/dt of the last tick
 
     def tick(carry: Carry, i):
         d = carry.d
         tau_t = i.astype(dt) * control.CONTROL_DT          # time since SSP⁻_k
-        active = tau_t < t_end - 1e-9
         in_dsp = tau_t < t_dsp
         ts = jnp.maximum(tau_t - t_dsp, 0.0)               # time into SSP
+        sig = ts + carry.gain_t                            # swing phase time (= ts unhurried)
+        active = jnp.where(carry.gain_t > 0, in_dsp | (sig < t_ssp - 1e-9), tau_t < t_end - 1e-9)
         terms = model.robot_terms(c, d)
         meas = outputs.measure(terms, d.qvel, c.index.root_dof)
         feet = outputs.foot_centres(terms)
@@ -266,7 +282,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         side_of_site = jnp.array([0, 0, 1, 1])
         is_stance_site = side_of_site == new_st
         # landing foot in DSP, swing foot near the end of SSP: contact only when touching
-        late_ssp = ts > gait.early_contact * t_ssp
+        late_ssp = sig > gait.early_contact * t_ssp
         other_ok = jnp.where(in_dsp, touching, touching & late_ssp)
         contact = jnp.where(is_stance_site, True, other_ok).astype(dt)
         foot_contact = jnp.stack([contact[0] + contact[1] > 0, contact[2] + contact[3] > 0])
@@ -275,19 +291,37 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         x_h = _hlip_at(cmd, ts)
         # the error at this phase, carried to SSP⁻ by the (linear) LIP flow of the rest of
         # the SSP: the step law's K is designed for pre-impact errors
-        u_des = cmd.u_hlip_next + jnp.sum(
-            cmd.gain * _flow_to_impact(x_r - x_h, t_ssp - jnp.minimum(ts, t_ssp), cmd.z0), axis=-1)
+        e_imp = _flow_to_impact(x_r - x_h, (t_ssp - jnp.minimum(sig, t_ssp)) / carry.rate, cmd.z0)
+        u_fb = jnp.sum(cmd.gain * e_imp, axis=-1)
+        # recovery: a large velocity error across the heading (a lateral push) takes the
+        # deadbeat step on [p, v] across the heading, which removes the velocity error in
+        # one step where a soft (LQR) gain spreads it over several while it grows
+        ch, sh = jnp.cos(heading), jnp.sin(heading)
+        across = jnp.stack([-sh, ch])
+        u_db = kd[0] * e_imp[:, 1] + kd[1] * e_imp[:, 2]
+        alpha = jnp.where(gait.recovery_speed > 0,
+                          jnp.clip(jnp.abs(across @ e_imp[:, 2])
+                                   / jnp.maximum(gait.recovery_speed, 1e-9) - 1.0, 0.0, 1.0), 0.0)
+        u_des = cmd.u_hlip_next + u_fb + alpha * (across @ (u_db - u_fb)) * across
         # step limits in the heading frame (length along, width across the path heading)
         sgn = jnp.where(sw == 0, 1.0, -1.0)
-        ch, sh = jnp.cos(heading), jnp.sin(heading)
         u_al = ch * u_des[0] + sh * u_des[1]
         u_ac = -sh * u_des[0] + ch * u_des[1]
         u_al = jnp.clip(u_al, -gait.step_length_max, gait.step_length_max)
+        # hurry: a step that the law wants far inward of the narrowest width (past the
+        # stance foot: the robot is pushed towards the stance side, and this swing foot
+        # cannot catch it) is taken sooner: the swing phase runs up to ``hurry`` times
+        # faster, so the other foot's outward step comes before the LIP lets the error grow
+        w_des = sgn * u_ac
+        excess = jnp.maximum(gait.step_width_min - w_des, 0.0)
+        rate = 1.0 + (gait.hurry - 1.0) * jnp.clip((excess - HURRY_FROM) / HURRY_SPAN, 0.0, 1.0)
+        rate = jnp.where(in_dsp, 1.0, rate)
         u_ac = sgn * jnp.clip(sgn * u_ac, gait.step_width_min, gait.step_width_max)
         u_des = jnp.stack([ch * u_al - sh * u_ac, sh * u_al + ch * u_ac])
-        u_des = jnp.where(ts < gait.freeze * t_ssp, u_des, carry.u_last)
-        # ---- desired outputs
-        cb, cdot, cddot = outputs.with_derivatives(lambda t: outputs.blend(t, t_ssp, gait.reach), ts)
+        u_des = jnp.where(sig < gait.freeze * t_ssp, u_des, carry.u_last)
+        # ---- desired outputs (swing trajectories on the phase time σ: d/dt = rate · d/dσ)
+        cb, cdot, cddot = outputs.with_derivatives(lambda t: outputs.blend(t, t_ssp, gait.reach), sig)
+        cdot, cddot = cdot * rate, cddot * rate ** 2
         yaw_d = yaw_from + cb * dyaw
         R_d = outputs.rot_z(yaw_d)
         y = jnp.zeros(outputs.N_OUT, dt).at[outputs.COM_Z].set(z0)
@@ -300,7 +334,8 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         vxy = cdot * (target_xy - start_xy)
         axy = cddot * (target_xy - start_xy)
         hz, hzd, hzdd = outputs.with_derivatives(
-            lambda t: outputs.swing_height(t, t_ssp, gait.clearance, gait.strike), ts)
+            lambda t: outputs.swing_height(t, t_ssp, gait.clearance, gait.strike), sig)
+        hzd, hzdd = hzd * rate, hzdd * rate ** 2
         # landing foot in DSP (late touchdown): hold xy, keep reaching down
         lz, lzd, lzdd = outputs.with_derivatives(
             lambda t: outputs.swing_height(t, t_ssp, gait.clearance, gait.strike), t_ssp + tau_t)
@@ -373,16 +408,19 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         sw_start = jnp.where(first_ssp, sw_pos, carry.sw_start)
         sw_yaw0 = jnp.where(first_ssp, sw_yaw, carry.sw_yaw0)
         # the target is frozen over the last part of the SSP (the foot is arriving)
-        u_last = jnp.where(active & ~in_dsp & (ts < gait.freeze * t_ssp), u_des, carry.u_last)
+        u_last = jnp.where(active & ~in_dsp & (sig < gait.freeze * t_ssp), u_des, carry.u_last)
         fell = carry.fell | (active & _fell(d_next))
+        run = active & ~carry.fell
+        gain_t = carry.gain_t + jnp.where(run & ~in_dsp, (rate - 1.0) * control.CONTROL_DT, 0.0)
         log = TickLog(com=terms.com, feet=feet, tau=res.tau, V=res.V, contact=contact,
-                      status=res.status)
-        return Carry(d_next, warm, sw_start, sw_yaw0, u_last, fell), log
+                      status=res.status, pelvis=d.qpos[:7], rate=rate, u_des=u_des)
+        return Carry(d_next, warm, sw_start, sw_yaw0, u_last, fell, gain_t, jnp.where(run, rate, carry.rate)), log
 
     sw_pos0 = jnp.where(sw == 0, feet0[0], feet0[1])
     sw_yaw00 = jnp.where(sw == 0, foot_yaw0[0], foot_yaw0[1])
+    zero = jnp.zeros((), dt)
     carry0 = Carry(d0, state.warm, sw_pos0, sw_yaw00, cmd.u_hlip_next.astype(dt),
-                   jnp.bool_(False))
+                   jnp.bool_(False), zero, jnp.ones((), dt))
     n = params.ticks.shape[0]
     carry, log = jax.lax.scan(tick, carry0, jnp.arange(n))
     # ---- SSP⁻_{k+1}: robot state, executed step
@@ -392,7 +430,8 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
     sw_xy = jnp.where(sw == 0, feet[0, :2], feet[1, :2])
     u_robot = sw_xy - st_xy
     failed = carry.fell | ~jnp.all(jnp.isfinite(x_r))
-    new = State(d=carry.d, warm=carry.warm, time=state.time + t_end,
+    # the step lasted T_SSP + T_DSP less what a hurried swing saved (to one tick)
+    new = State(d=carry.d, warm=carry.warm, time=state.time + t_end - carry.gain_t,
                 yaw=outputs.wrap(heading).astype(dt),
                 land_xy=st_xy + carry.u_last, key=state.key)
     return new, StepResult(x_robot=x_r, u_robot=u_robot, failed=failed), log
