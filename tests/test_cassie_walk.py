@@ -135,13 +135,27 @@ def test_short_walk_on_mjx():
     A3, B3 = hlip.s2s_matrices(z0, ts, td)
     k = np.asarray(hlip.lqr_gain(A3, B3, jnp.diag(jnp.array([0.07065, 1.0, 0.247])),
                                  jnp.array(2.673)))
-    log, _ = plant.walk_orbits([0.0, 0.5, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, np.deg2rad(30)], 8,
-                               z0=z0, t_ssp=ts, t_dsp=td, width=0.15, gain=np.tile(k, (2, 1)))
+    # a fourth robot steps in place with the hurried swing and is pushed 200 N to the right
+    # early in step 4: in the step after it the law wants the swing foot past the stance foot,
+    # so that swing is hurried
+    T = ts + td
+    gaits = [CassieConfig()] * 3 + [CassieConfig(hurry=2.0)]
+    t_push = 4 * T + td + 0.03
+    log, _ = plant.walk_orbits([0.0, 0.5, 0.0, 0.0], [0.0] * 4, [0.0, 0.0, np.deg2rad(30), 0.0], 8,
+                               z0=z0, t_ssp=ts, t_dsp=td, width=0.15, gain=np.tile(k, (2, 1)),
+                               gait=gaits, pushes=[(t_push, t_push + 0.1, 0.0, np.array([0, 0, 0, -200.0]))])
+    # unhurried robots: every step lasts T_SSP + T_DSP exactly (float64: 1e-12 s); the pushed
+    # one too until the push, then one of its steps lands at least 10 ms early (measured: 106 ms
+    # early, in step 5) and none takes longer than T
+    dur = np.diff(log.time, axis=1)
+    np.testing.assert_allclose(dur[:3], T, atol=1e-12)
+    np.testing.assert_allclose(dur[3, :4], T, atol=1e-12)
+    assert np.all(dur[3] <= T + 1e-12) and dur[3, 4:].min() < T - 0.01, dur[3]
+    log = jax.tree.map(lambda a: a[:3], log)
     assert not log.failed.any(), log.failed
     assert np.all(np.isfinite(log.x_robot)) and np.all(np.isfinite(log.w))
     # lateral steps alternate: right foot (u_y < 0) at SSP⁻_1, left (u_y > 0) at SSP⁻_2, ...
     assert np.all(log.u_robot[:2, 1:, 1][:, ::2] < 0) and np.all(log.u_robot[:2, 2:, 1][:, ::2] > 0)
-    T = ts + td
     speed = (log.x_robot[1, 8, 0, 0] - log.x_robot[1, 3, 0, 0]) / (5 * T)
     assert abs(speed - 0.5) < 0.1, speed
     assert abs(log.x_robot[0, 8, 0, 0] - log.x_robot[0, 0, 0, 0]) < 0.1  # in place stayed

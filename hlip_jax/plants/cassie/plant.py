@@ -484,6 +484,7 @@ class WalkLog(NamedTuple):
     w: np.ndarray         # (B, K-1, 2, 3) S2S residual x_{k+1} − A x_k − B u_k (from step 1 on)
     e: np.ndarray         # (B, K+1, 2, 3) x_robot − x_hlip
     pelvis_yaw: np.ndarray  # (B, K+1)
+    time: np.ndarray      # (B, K+1) plant clock at SSP⁻_0..K [s] (a hurried step is shorter than T)
 
 
 def orbit_step(z0, t_ssp, t_dsp, v_fwd, v_lat, width, heading, swing):
@@ -567,7 +568,7 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
     feet = np.asarray(jax.vmap(outputs.foot_centres)(terms))
     u_r0 = feet[:, 0, :2] - feet[:, 1, :2]
     log = dict(x_robot=[x_r0], u_robot=[u_r0], x_hlip=[x_h], u_hlip=[u_h.T], failed=[],
-               heading=[heading.copy()], pelvis_yaw=[np.zeros(B)])
+               heading=[heading.copy()], pelvis_yaw=[np.zeros(B)], time=[np.asarray(state.time)])
     ticks = []
     for k in range(n_steps):
         heading_next = yaw_rate * (k + 1) * T
@@ -590,6 +591,7 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
         log["heading"].append(heading.copy())
         R = jax.vmap(lambda q: model.quat_to_mat(q / jnp.linalg.norm(q)))(state.d.qpos[:, 3:7])
         log["pelvis_yaw"].append(np.arctan2(np.asarray(R[:, 1, 0]), np.asarray(R[:, 0, 0])))
+        log["time"].append(np.asarray(state.time))
     out = {k: np.stack(v, axis=1) for k, v in log.items()}
     xr, ur = out["x_robot"], out["u_robot"]
     w = (xr[:, 2:] - np.einsum("bij,bkpj->bkpi", A, xr[:, 1:-1])
