@@ -114,6 +114,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp = sub.add_parser("report", help="(re)write the report of a results directory",
                         description="Write DIR/report.html, DIR/report.md and DIR/figures/.")
     rp.add_argument("dir", metavar="DIR")
+    rp.add_argument("--heatmap", nargs=2, metavar=("AXIS", "AXIS"), default=None,
+                    help="the two swept dimensions of the grid heat maps (a grid field such as "
+                    "disturbance.pushes.0.time, or 'path'); default: the first two axes")
 
     sub.add_parser("list", help="list the shipped sweeps", description="List sweeps/*.toml.")
 
@@ -196,7 +199,7 @@ def cmd_report(args) -> int:
     d = Path(args.dir)
     if not d.is_dir():
         raise UserError(f"{d}: results directory not found")
-    html, md = report.write_report(d)
+    html, md = report.write_report(d, heatmap_axes=args.heatmap)
     print(f"report: {html}")
     print(f"        {md}")
     return EXIT_OK

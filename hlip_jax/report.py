@@ -26,6 +26,7 @@ from __future__ import annotations
 import html
 import math
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -238,13 +239,39 @@ def _point_of(cfg: dict, fields: list[str]):
     return vals[0] if len(vals) == 1 else tuple(vals)
 
 
-def heatmaps(man: dict, rows: list[dict], fig_dir: Path) -> list[tuple[str, str]]:
-    """Success-rate and mean-RMS-error maps over the first two swept dimensions."""
+def heatmap_dims(man: dict, axes: Sequence[str] | None = None):
+    """The two swept dimensions of the heat maps: the first two, or the two named in ``axes``
+    (a dimension's label or any of its fields; 'path' for the paths).  None if the run has
+    fewer than two.  Raises :class:`ReportError` naming the allowed dimensions."""
     dims = _dims(man)
-    if len(dims) < 2:
+    if axes is None:
+        return (dims[0], dims[1]) if len(dims) >= 2 else None
+    allowed = ", ".join(repr(d[0]) for d in dims) or "none (the run has no grid)"
+    if len(axes) != 2:
+        raise ReportError(f"heat-map axes: expected two swept dimensions, got {len(axes)}; "
+                          f"allowed: {allowed}")
+    picked = []
+    for name in axes:
+        hit = [d for d in dims if name == d[0] or name in d[2]]
+        if not hit:
+            raise ReportError(f"heat-map axis {name!r} is not a swept dimension of this run; "
+                              f"allowed: {allowed}")
+        picked.append(hit[0])
+    if picked[0][0] == picked[1][0]:
+        raise ReportError(f"heat-map axes: {axes[0]!r} and {axes[1]!r} are the same dimension; "
+                          f"allowed: {allowed}")
+    return picked[0], picked[1]
+
+
+def heatmaps(man: dict, rows: list[dict], fig_dir: Path,
+             axes: Sequence[str] | None = None) -> list[tuple[str, str]]:
+    """Success-rate and mean-RMS-error maps over two swept dimensions (:func:`heatmap_dims`;
+    the other dimensions are pooled in each cell)."""
+    pair = heatmap_dims(man, axes)
+    if pair is None:
         return []
     plt = _plt()
-    (la, va, fa), (lb, vb, fb) = dims[0], dims[1]
+    (la, va, fa), (lb, vb, fb) = pair
     ka = {repr(v): i for i, v in enumerate(va)}
     kb = {repr(v): i for i, v in enumerate(vb)}
     ok = np.zeros((len(va), len(vb)))
@@ -290,12 +317,12 @@ def heatmaps(man: dict, rows: list[dict], fig_dir: Path) -> list[tuple[str, str]
                     ax.text(j, i, _fmt(float(data[i, j]), 2), ha="center", va="center",
                             fontsize=6, color="w" if dark else "k")
         fig.colorbar(im, ax=ax, label=clabel)
-        ax.set_title(f"{clabel} over {la} × {lb}", fontsize=9)
+        ax.set_title(f"{clabel}\nover {la} × {lb}", fontsize=9)
         fig.tight_layout()  # tick labels of unknown length: worth the cost for 2 figures
         fn = f"heatmap_{name}.png"
         fig.savefig(fig_dir / fn, dpi=DPI)
         plt.close(fig)
-        out.append((clabel, f"figures/{fn}"))
+        out.append((f"{clabel} over {la} × {lb}", f"figures/{fn}"))
     return out
 
 
@@ -380,8 +407,9 @@ def _representatives(man, rows):
     return reps
 
 
-def write_report(out_dir) -> tuple[Path, Path]:
-    """Write ``report.html``, ``report.md`` and ``figures/`` for a results directory.
+def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Path, Path]:
+    """Write ``report.html``, ``report.md`` and ``figures/`` for a results directory;
+    ``heatmap_axes``: the two swept dimensions of the grid maps (default: the first two).
 
     Returns (html path, markdown path).  Raises :class:`ReportError` if the directory is not a
     complete results directory.
@@ -393,6 +421,7 @@ def write_report(out_dir) -> tuple[Path, Path]:
         raise ReportError(str(err)) from None
     if not store.chunk_files(out):
         raise ReportError(f"{out}: no results stored yet (no chunks)")
+    heatmap_dims(man, heatmap_axes)          # a bad axis fails before any figure is drawn
     if not (out / store.SUMMARY).is_file():
         if man.get("status") != "complete":
             raise ReportError(f"{out}: the run is incomplete; finish it with `hlip-sweep run "
@@ -483,7 +512,7 @@ def write_report(out_dir) -> tuple[Path, Path]:
         doc.table(["path", "plane", "runs", "in-sample inner", "in-sample outer",
                    "held-out"], cov_summary)
 
-    hm = heatmaps(man, rows, fig_dir)
+    hm = heatmaps(man, rows, fig_dir, heatmap_axes)
     if hm:
         doc.h(2, "Grid: success and error maps")
         for alt, src in hm:

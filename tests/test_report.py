@@ -74,3 +74,17 @@ def test_report_errors(tmp_path):
                     simulate=fake_simulate, max_chunks=1)
     with pytest.raises(report.ReportError, match="incomplete"):
         report.write_report(out)
+
+
+def test_heatmap_axes_are_chosen_by_name(tiny_report, tmp_path):
+    out, _, md = tiny_report
+    # default: the first two swept dimensions, named in the figures' alt text
+    assert "over gain.type × mpc.alpha" in md
+    _, md_p = report.write_report(out, heatmap_axes=("path", "mpc.alpha"))
+    assert "over path × mpc.alpha" in md_p.read_text()
+    for bad, msg in ((("path", "gain.typo"), "'gain.typo' is not a swept dimension"),
+                     (("path", "path"), "same dimension"), (("path",), "expected two")):
+        with pytest.raises(report.ReportError, match=msg) as err:
+            report.write_report(out, heatmap_axes=bad)
+        assert "allowed: 'gain.type', 'mpc.alpha', 'path'" in str(err.value)
+    report.write_report(out)          # leave the module fixture's report as it was
