@@ -53,8 +53,8 @@ FALL_HEIGHT = 0.55        # [m] pelvis height below which the robot has fallen
 FALL_TILT = 0.7           # [rad] pelvis roll or pitch beyond which it has fallen
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
 COM_HEIGHT = (0.65, 0.9)  # [m] allowed COM height targets (z0 is clipped to it)
-HURRY_FROM = 0.05         # [m] width-limit excess of the wanted step where hurrying starts
-HURRY_SPAN = 0.10         # [m] further excess over which the phase rate reaches gait.hurry
+HURRY_FROM = 0.05         # [m] how far inward of the narrowest width the wanted step must be to hurry
+HURRY_SPAN = 0.10         # [m] further inward excess over which the phase rate reaches gait.hurry
 #: the gait's tunable parameters and their defaults live in :class:`hlip_jax.config.CassieConfig`
 #: and reach the controller as per-scenario data (:class:`Gait`)
 
@@ -264,7 +264,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         sw_yaw0: jax.Array
         u_last: jax.Array        # (2,) last swing target step
         fell: jax.Array
-        gain_t: jax.Array        # σ − (time into SSP): time a hurried swing saved [s]
+        t_saved: jax.Array       # σ − (time into SSP): time a hurried swing saved [s]
         rate: jax.Array          # dσ/dt of the last tick
 
     def tick(carry: Carry, i):
@@ -272,8 +272,9 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         tau_t = i.astype(dt) * control.CONTROL_DT          # time since SSP⁻_k
         in_dsp = tau_t < t_dsp
         ts = jnp.maximum(tau_t - t_dsp, 0.0)               # time into SSP
-        sig = ts + carry.gain_t                            # swing phase time (= ts unhurried)
-        active = jnp.where(carry.gain_t > 0, in_dsp | (sig < t_ssp - 1e-9), tau_t < t_end - 1e-9)
+        sig = ts + carry.t_saved                           # swing phase time (= ts unhurried)
+        # an unhurried step keeps the time-based end, so its tick count is exactly as before
+        active = jnp.where(carry.t_saved > 0, in_dsp | (sig < t_ssp - 1e-9), tau_t < t_end - 1e-9)
         terms = model.robot_terms(c, d)
         meas = outputs.measure(terms, d.qvel, c.index.root_dof)
         feet = outputs.foot_centres(terms)
@@ -411,10 +412,11 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         u_last = jnp.where(active & ~in_dsp & (sig < gait.freeze * t_ssp), u_des, carry.u_last)
         fell = carry.fell | (active & _fell(d_next))
         run = active & ~carry.fell
-        gain_t = carry.gain_t + jnp.where(run & ~in_dsp, (rate - 1.0) * control.CONTROL_DT, 0.0)
+        t_saved = carry.t_saved + jnp.where(run & ~in_dsp, (rate - 1.0) * control.CONTROL_DT, 0.0)
         log = TickLog(com=terms.com, feet=feet, tau=res.tau, V=res.V, contact=contact,
                       status=res.status, pelvis=d.qpos[:7], rate=rate, u_des=u_des)
-        return Carry(d_next, warm, sw_start, sw_yaw0, u_last, fell, gain_t, jnp.where(run, rate, carry.rate)), log
+        return Carry(d_next, warm, sw_start, sw_yaw0, u_last, fell, t_saved,
+                     jnp.where(run, rate, carry.rate)), log
 
     sw_pos0 = jnp.where(sw == 0, feet0[0], feet0[1])
     sw_yaw00 = jnp.where(sw == 0, foot_yaw0[0], foot_yaw0[1])
@@ -431,7 +433,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
     u_robot = sw_xy - st_xy
     failed = carry.fell | ~jnp.all(jnp.isfinite(x_r))
     # the step lasted T_SSP + T_DSP less what a hurried swing saved (to one tick)
-    new = State(d=carry.d, warm=carry.warm, time=state.time + t_end - carry.gain_t,
+    new = State(d=carry.d, warm=carry.warm, time=state.time + t_end - carry.t_saved,
                 yaw=outputs.wrap(heading).astype(dt),
                 land_xy=st_xy + carry.u_last, key=state.key)
     return new, StepResult(x_robot=x_r, u_robot=u_robot, failed=failed), log
