@@ -6,7 +6,13 @@ obeys (per plane, sagittal and lateral)
     e⁺ = A_cl e + w,   A_cl = A + B K,   w ∈ W,
 
 where ``w_k = x_{k+1} − A x_k − B u_k`` is measured from the robot's own pre-impact states and
-executed step sizes.  The smallest set that every error trajectory started at 0 stays in is the
+executed step sizes.  A robot whose feet do not land exactly where the law asks adds the
+foot-placement error δu_k = u_k − (u_HLIP,k + K e_k) (:func:`placement_errors`):
+
+    e⁺ = A_cl e + w + B δu,
+
+so the disturbance the error dynamics actually see is d = w + B δu = e⁺ − A_cl e; :func:`analyse`
+bounds d when it is given the H-LIP steps (on a plant that places its feet exactly, d = w).  The smallest set that every error trajectory started at 0 stays in is the
 minimal robust positively invariant (mRPI) set
 
     F_∞ = ⊕_{i≥0} A_cl^i W.
@@ -881,6 +887,23 @@ def disturbances(x_robot, u_exec, valid, A, B, transient: int = 0) -> Disturbanc
     return _disturbances(x, u, v, Ap.astype(x.dtype), Bp.astype(x.dtype), int(transient))
 
 
+def placement_errors(u_exec, u_hlip, e, K):
+    """Foot-placement errors δu_k = u_k − (u_HLIP,k + K e_k) [m] per plane: how far the executed
+    step (robot foot to foot at SSP⁻_k) lies from the step the stepping law asks for at the
+    same pre-impact error e_k.  0 on the H-LIP plant without step noise.
+
+    Args:
+      u_exec, u_hlip: (..., n_steps, 2) executed and H-LIP step sizes [m].
+      e: (..., n_steps, 2, 3) errors x_robot − x_HLIP per plane [c, p, v].
+      K: stepping gain (n,) or per plane (2, n); n = 2 acts on [p, v].
+    Returns (..., n_steps, 2)."""
+    e = _f64(e)
+    K = _f64(K)
+    n = K.shape[-1]
+    Kp = np.broadcast_to(K, (2, n))
+    return _f64(u_exec) - _f64(u_hlip) - np.einsum("pj,...pj->...p", Kp, _states(e, n))
+
+
 def estimate_w(samples, mask=None, method: str = "box", quantile: float = 0.99):
     """Disturbance set W from samples (N, n) of one plane (rows with ``mask`` False dropped).
 
@@ -986,7 +1009,7 @@ def _joint(E_pair, e, mask, tol):
 def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
             quantile: float = 0.99, transient: int = 0, holdout_fraction: float = 0.0,
             seed: int = 0, eps: float = 1e-5, directions=None, tol: float = 1e-9,
-            min_halfwidth=None) -> Analysis:
+            min_halfwidth=None, u_hlip=None) -> Analysis:
     """Per-plane W / E / coverage of a whole log.
 
     Args:
@@ -995,6 +1018,9 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
         with the same mask as the states (:func:`step_mask`).
       A, B: S2S matrices, shared or per plane; their size selects [c, p, v] or [p, v].
       K: stepping gain (n,) or per plane (2, n); A_cl = A + B K.
+      u_hlip: (..., n_steps, 2) H-LIP steps, or None.  Given, W bounds the error system's
+        disturbance d = w + B δu (:func:`placement_errors`), which the errors obey exactly
+        (e⁺ = A_cl e + d); None bounds the robot's S2S disturbance w alone.
       W_estimator, quantile: see :func:`estimate_w`.
       holdout_fraction: in [0, 1); the leading axis (scenarios) is split with
         ``numpy.random.default_rng(seed)``: W is re-estimated on the training scenarios and
@@ -1018,7 +1044,10 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
     Acl = Ap + Bp[:, :, None] * Kp[:, None, :]
 
     d = disturbances(x, u_exec, valid, Ap, Bp, transient)
-    w, wmask = np.asarray(d.w), np.asarray(d.mask)
+    w, wmask = np.asarray(d.w, np.float64), np.asarray(d.mask)
+    if u_hlip is not None:
+        du = placement_errors(u_exec, u_hlip, e, Kp)                  # (..., n_steps, 2)
+        w = w + Bp * du[..., :-1, :, None]
     es = _states(e, n)
     alive = np.cumprod(np.asarray(valid, bool), axis=-1).astype(bool)
     emask = alive & (np.arange(alive.shape[-1]) >= transient)  # = step_mask, in numpy

@@ -177,7 +177,7 @@ def invariant_analysis(log, members: list[int]):
     hold = 0.5 if len(members) >= 2 else 0.0
     return inv.analyse(log["x_robot"][sel], log["u_robot"][sel], valid, log["e"][sel],
                        A, B, K, W_estimator="box", holdout_fraction=hold, seed=0,
-                       min_halfwidth=store.W_MIN_HALFWIDTH)
+                       min_halfwidth=store.W_MIN_HALFWIDTH, u_hlip=log["u_hlip"][sel])
 
 
 def fig_invariant(an, log, members, path: Path, title: str) -> None:
@@ -211,6 +211,17 @@ def _coverage_rows(an, n_runs: int, row_summary: dict | None) -> list[list[str]]
                      f"{_fmt(pa.coverage.inner)} – {_fmt(pa.coverage.outer)} (n={pa.coverage.n})",
                      held])
     return rows
+
+
+def _placement_note(rep: dict | None) -> str:
+    """'; scenario: RMS |δu| …, mean along the path …' from a summary row, or ''."""
+    if not rep:
+        return ""
+    rms, along = rep.get("place_err_rms", math.nan), rep.get("place_err_along", math.nan)
+    if _isnan(rms):
+        return ""
+    return (f"; this scenario: RMS |δu| {_fmt(float(rms))} m, mean along the path "
+            f"{_fmt(float(along))} m")
 
 
 COVERAGE_HEAD = ["plane", "W box lo – hi", "s", "α", "size of E",
@@ -490,8 +501,11 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
             fig_invariant(an, log, same, fig_dir / f"{slug}_invariant.png", pname)
             doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")
             doc.p(f"W and E from {len(same)} run(s) sharing the gain of scenario #{idx}; "
-                  "E is the mRPI set of e⁺ = (A + BK) e + w (Raković et al. 2005) on "
+                  "E is the mRPI set of e⁺ = (A + BK) e + d (Raković et al. 2005) on "
                   f"{'[c, p, v]' if an.planes[0].E.dim == 3 else '[p, v]'}, "
+                  "W the box of d = w + B δu (the S2S disturbance w plus the foot-placement "
+                  "error δu, executed step minus the law's step"
+                  + _placement_note(rep) + "), "
                   "coverage = fraction of observed errors inside E (bracket inner F_s – outer "
                   "F_s/(1−α)); held-out: " + ("W from half of the runs, coverage on the others."
                                                if len(same) >= 2 else

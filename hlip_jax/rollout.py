@@ -312,7 +312,8 @@ def simulate_one(scn: Scenario, static: Static):
     plan0, ok0 = plan(scn.x0, jnp.zeros((), dt), stance0, cold)
     u_h0 = plan0.u[0]
     u_r0 = u_h0  # x_R,0 = x_H,0
-    pstate = plant.init(scn.plant, scn.x0, u_r0, stance0, scn.key)
+    heading0 = paths.reference(scn.path, jnp.zeros((), dt)).heading
+    pstate = plant.init(scn.plant, scn.x0, u_r0, stance0, scn.key, heading0)
 
     class Carry(NamedTuple):
         x_h: jax.Array

@@ -27,9 +27,16 @@ Metrics (per scenario, over valid pre-impact samples k, i.e. steps before any fa
 * ``rms_pos_err`` [m]: RMS of |c_k − r(t_k)| (time-indexed tracking error, includes lag).
 * ``final_pos_err`` [m]: |c_k − r(t_k)| at the last valid step.
 * ``emax_{x,y}_{c,p,v}``: max |e| per plane and component [m, m, m/s].
+* ``place_err_rms`` [m]: RMS over valid steps of |δu_k|, the foot-placement error (executed
+  step minus the stepping law's step u_HLIP + K e at the same pre-impact error;
+  :func:`hlip_jax.invariant.placement_errors`); ``place_err_along`` [m]: its mean along the path
+  heading (a systematic over- (> 0) or under-step).  0 on the H-LIP plant without step noise.
 * ``cov_{x,y}_inner`` / ``cov_{x,y}_outer``: in-sample coverage bracket of the errors in the
-  mRPI set E of ``e⁺ = (A + BK) e + w`` with W the box of that scenario's own w samples; the
-  state is [c, p, v] when the gain acts on c, else [p, v] (see :func:`error_model`).
+  mRPI set E of ``e⁺ = (A + BK) e + d`` with W the box of that scenario's own samples of the
+  error system's disturbance d = w + B δu (the S2S disturbance plus the foot-placement error;
+  the errors obey this recursion exactly, so a run started at e = 0 is covered in-sample
+  whenever its W contains the origin, and the held-out figure is the test); the state is [c, p, v] when the gain acts
+  on c, else [p, v] (see :func:`error_model`).
 * ``cov_{x,y}_heldout``: W and E from the first half of the steps, coverage (outer set) of the
   errors in the second half.
 * ``e_size_{x,y}``: volume of that in-sample E (outer set; [m²·m/s] on [c, p, v], [m·m/s] on
@@ -91,7 +98,7 @@ SUMMARY_METRICS = (
     "emax_x_c", "emax_x_p", "emax_x_v", "emax_y_c", "emax_y_p", "emax_y_v",
     "cov_x_inner", "cov_x_outer", "cov_x_heldout", "cov_y_inner", "cov_y_outer", "cov_y_heldout",
     "qp_failures", "min_clearance", "e_size_x", "e_size_y", "push_peak_err",
-    "push_recovery_steps",
+    "push_recovery_steps", "place_err_rms", "place_err_along",
 )
 
 #: COM-to-path distance a pushed robot must return to and stay within [m] (the paper's push
@@ -317,6 +324,13 @@ def error_model(log: dict, s: int):
 W_MIN_HALFWIDTH = 1e-6
 
 
+def _placement(log: dict, s: int) -> np.ndarray:
+    """(K, 2) foot-placement errors δu_k of scenario ``s`` [m] (NaN where e is)."""
+    from hlip_jax import invariant as inv
+    return inv.placement_errors(log["u_robot"][s], log["u_hlip"][s], log["e"][s],
+                                log["K_gain"][s])
+
+
 def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
     """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring)."""
     from hlip_jax import invariant as inv
@@ -325,8 +339,11 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
     x = np.asarray(log["x_robot"][s], np.float64)[:, :, sl]     # (K, 2, n)
     u = np.asarray(log["u_robot"][s], np.float64)
     e = np.asarray(log["e"][s], np.float64)[:, :, sl]
-    # w from the robot's own S2S data (same definition as the log's w)
+    # the error system's disturbance d = w + B δu: w from the robot's own S2S data (same
+    # definition as the log's w), δu its foot-placement error
+    du = _placement(log, s)
     w = x[1:] - (np.einsum("ij,kpj->kpi", A, x[:-1]) + B[None, None, :] * u[:-1, :, None])
+    w = w + B[None, None, :] * du[:-1, :, None]
     wmask = mask[1:] & mask[:-1]
     nK = int(mask.sum())
     half = nK // 2
@@ -401,6 +418,10 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
         t = np.asarray(log["t"][s], np.float64)[mask]
         m["push_peak_err"], m["push_recovery_steps"] = push_recovery(
             d_path, t, push_time, failed=int(np.asarray(log["status"][s])) != 0)
+    du = _placement(log, s)[mask]                                     # (n, 2)
+    h = np.asarray(log["ref_heading"][s], np.float64)[mask]
+    m["place_err_rms"] = float(np.sqrt(np.mean(np.sum(du ** 2, axis=1))))
+    m["place_err_along"] = float(np.mean(np.cos(h) * du[:, 0] + np.sin(h) * du[:, 1]))
     e = np.abs(np.asarray(log["e"][s], np.float64)[mask])            # (n, 2, 3)
     for p, plane in enumerate("xy"):
         for j, comp in enumerate("cpv"):

@@ -13,7 +13,7 @@ from hlip_jax import hlip
 from hlip_jax.config import (CassieConfig, DisturbanceConfig, HLIPConfig, PushConfig,
                              ScenarioConfig)
 from hlip_jax.plants.base import StepCommand
-from hlip_jax.plants.cassie import outputs, plant
+from hlip_jax.plants.cassie import model, outputs, plant
 
 Z0, TS, TD = 0.85, 0.25, 0.1
 
@@ -125,6 +125,34 @@ def test_make_params_pushes_and_validation():
 
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
+def test_init_faces_the_path_heading():
+    """The standing robot turned to heading θ0 about the vertical through its COM: pelvis and
+    foot yaw θ0, COM where x0 puts it, the feet 0.261 m apart across the heading and level with
+    each other along it — the θ0 = 0 pose rotated (rigid rotation: 1e-9 m / 1e-9 rad in float64)."""
+    x0 = jnp.array([[0.3, 0.0, 0.0], [-0.2, 0.0, 0.0]])
+    key = jax.random.PRNGKey(0)
+    c = plant.cassie()
+    ref = plant.init(None, x0, None, None, key)
+    ref_feet = np.asarray(outputs.foot_centres(model.robot_terms(c, ref.d)))
+    com = np.array([0.3, -0.2])
+    for th in (0.66577, -2.5):
+        s = plant.init(None, x0, None, None, key, th)
+        terms = model.robot_terms(c, s.d)
+        R = np.asarray(s.d.xmat[c.index.pelvis_body]).reshape(3, 3)
+        assert abs(float(s.yaw) - th) < 1e-12
+        assert abs(np.arctan2(R[1, 0], R[0, 0]) - th) < 1e-9
+        np.testing.assert_allclose(np.asarray(terms.foot_yaw), th, atol=1e-9)
+        np.testing.assert_allclose(np.asarray(s.d.subtree_com[c.index.pelvis_body]),
+                                   np.asarray(ref.d.subtree_com[c.index.pelvis_body]), atol=1e-9)
+        Rz = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+        feet = np.asarray(outputs.foot_centres(terms))
+        np.testing.assert_allclose(feet[:, :2] - com, (ref_feet[:, :2] - com) @ Rz.T, atol=1e-9)
+        np.testing.assert_allclose(feet[:, 2], ref_feet[:, 2], atol=1e-9)
+        np.testing.assert_allclose(np.asarray(s.land_xy), feet[0, :2], atol=1e-12)
+        gap = Rz.T @ (feet[0, :2] - feet[1, :2])                     # left − right, heading frame
+        np.testing.assert_allclose(gap, [0.0, 0.261], atol=1e-3)
+
+
 def test_short_walk_on_mjx():
     """Three robots with the default gait (T_SSP 0.2726 s, T_DSP 0.02 s, z0 0.8413 m, 3-state LQR
     gain) — in place, 0.5 m/s forward, turning at 30 °/s — walk 8 steps (2.2 s): no fall, finite

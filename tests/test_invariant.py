@@ -347,6 +347,51 @@ def test_end_to_end_w_converges_and_heldout_coverage():
     assert r2.planes[0].E.dim == 2 and r2.planes[0].coverage.outer < 1.0
 
 
+def test_placement_errors_enter_the_error_disturbance():
+    """A robot that over-steps by 1 cm on average (sagittal, ±1.2 cm), with S2S noise w of
+    ±1 mm: e⁺ = A_cl e + w + B δu.  placement_errors recovers δu from the log (1e-12 m:
+    rounding of ~0.1 m sums); E from d = w + B δu covers every error in-sample (the recursion
+    holds exactly, e_0 = 0 and W ∋ 0, so e_k ∈ ⊕_{i<k} A_cl^i W ⊆ F_∞ ⊆ F_s/(1−α); tolerance
+    1e-9 of the membership test), while E from w alone misses the offset the bias drives
+    (bound 0.5 of the sagittal errors inside)."""
+    A, B = hlip.s2s_matrices(Z0, TS, TD, with_position=True)
+    A, B = np.asarray(A), np.asarray(B)
+    k = np.asarray(_lqr_gain(jnp.asarray(A), jnp.asarray(B), jnp.diag(jnp.array([0.05, 1.0, 0.25])),
+                             jnp.array(4.0)))
+    K = np.stack([k, k])
+    rng = np.random.default_rng(3)
+    n_scen, n_steps = 4, 60
+    w = rng.uniform(-1e-3, 1e-3, size=(n_scen, n_steps, 2, 3))
+    du = rng.uniform(-0.012, 0.012, size=(n_scen, n_steps, 2)) + np.array([0.01, 0.0])
+    # the H-LIP walks under its own feedback plus random steps (open loop it diverges, and
+    # the sums lose every digit of w)
+    u_h = rng.uniform(-0.05, 0.05, size=(n_scen, n_steps, 2))
+    x_h = np.zeros((n_scen, n_steps, 2, 3))
+    x_r = np.zeros_like(x_h)
+    u_r = np.zeros_like(u_h)
+    for j in range(n_steps):
+        u_h[:, j] += np.einsum("pj,spj->sp", K, x_h[:, j])
+        e = x_r[:, j] - x_h[:, j]
+        u_r[:, j] = u_h[:, j] + np.einsum("pj,spj->sp", K, e) + du[:, j]
+        if j + 1 < n_steps:
+            x_h[:, j + 1] = x_h[:, j] @ A.T + B * u_h[:, j, :, None]
+            x_r[:, j + 1] = x_r[:, j] @ A.T + B * u_r[:, j, :, None] + w[:, j]
+    e = x_r - x_h
+    np.testing.assert_allclose(inv.placement_errors(u_r, u_h, e, K), du, atol=1e-12)
+    np.testing.assert_allclose(inv.placement_errors(u_r, u_h, e, k), du, atol=1e-12)
+    valid = np.ones((n_scen, n_steps), bool)
+    with_du = inv.analyse(x_r, u_r, valid, e, A, B, K, u_hlip=u_h)
+    d = w[:, :-1] + B * du[:, :-1, :, None]
+    for p in range(2):
+        W = with_du.planes[p].W
+        np.testing.assert_allclose(np.asarray(W.lo), d[:, :, p].min(axis=(0, 1)), atol=1e-12)
+        np.testing.assert_allclose(np.asarray(W.hi), d[:, :, p].max(axis=(0, 1)), atol=1e-12)
+        assert np.all(np.asarray(W.lo) < 0) and np.all(np.asarray(W.hi) > 0)    # W ∋ 0
+        assert with_du.planes[p].coverage.outer == 1.0
+    without = inv.analyse(x_r, u_r, valid, e, A, B, K)
+    assert without.planes[0].coverage.outer < 0.5, without.planes[0].coverage
+
+
 def test_bad_inputs_name_the_field():
     with pytest.raises(ValueError, match="Schur"):
         inv.mrpi(np.array([[1.1]]), inv.Box(jnp.array([-1.0]), jnp.array([1.0])))

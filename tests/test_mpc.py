@@ -100,9 +100,15 @@ def _noncondensed(params, x0, prev, stance0, prev_c):
         lo.append(params.width_min if left else -params.width_max)
         hi.append(params.width_max if left else -params.width_min)
     obs = np.asarray(params.obstacles)
-    for j in range(N):
-        for o in range(O):
-            d = np.asarray(prev_c[j]) - obs[o, :2]
+    pc = np.asarray(prev_c)
+    for o in range(O):
+        # side of the plan point nearest the disc, across that point's heading
+        jn = int(np.argmin([np.hypot(*(pc[j] - obs[o, :2])) for j in range(N)]))
+        thn = float(prev.heading[jn])
+        side = 1.0 if np.dot(pc[jn] - obs[o, :2], [-np.sin(thn), np.cos(thn)]) >= 0 else -1.0
+        for j in range(N):
+            th = float(prev.heading[j])
+            d = pc[j] - obs[o, :2] + 2 * side * obs[o, 2] * np.array([-np.sin(th), np.cos(th)])
             nrm = d / np.linalg.norm(d)
             r = np.zeros(n); r[iX(0, j)] = nrm[0]; r[iX(1, j)] = nrm[1]; r[iS(o)] = 1.0
             rows.append(r); lo.append(obs[o, 2] + nrm @ obs[o, :2]); hi.append(np.inf)
@@ -165,6 +171,32 @@ def test_condensed_with_obstacles(seed):
     X = np.asarray(mpc.predict(params, x0, jnp.asarray(u_ref)))
     dist = np.linalg.norm(X[:, :, 0] - obstacles[0, :2], axis=1)
     assert np.all(dist >= obstacles[0, 2] - 1e-6)
+
+
+def test_obstacle_normals_tilt_towards_the_passing_side():
+    """Closed forms: a plan straight along +x at the disc's centre line (a tie: side +1) gets
+    n ∝ (c − o) + 2r (0, 1); a plan passing 0.1 m below the centre tilts down, n ∝ (c − o) −
+    2r (0, 1); along heading 90° (across = −x) a plan right of o tilts to +x.  Every normal is a unit vector and
+    its half-plane lies outside the disc (sampled: 1e-12 m)."""
+    r = 0.4
+    obstacles = jnp.array([[2.0, 0.0, r]])
+    xs = jnp.linspace(0.5, 3.5, 7)
+    heading = jnp.zeros(7)
+    for dy, side in ((0.0, 1.0), (-0.1, -1.0)):
+        prev_c = jnp.stack([xs, jnp.full(7, dy)], axis=1)
+        n = np.asarray(mpc.obstacle_normals(prev_c, heading, obstacles))[:, 0]
+        ref = np.stack([np.asarray(xs) - 2.0, np.full(7, dy + 2 * side * r)], axis=1)
+        np.testing.assert_allclose(n, ref / np.linalg.norm(ref, axis=1, keepdims=True), atol=1e-12)
+    prev_c = jnp.stack([jnp.full(7, 2.05), xs - 2.0], axis=1)     # walking +y just right of o
+    n = np.asarray(mpc.obstacle_normals(prev_c, jnp.full(7, np.pi / 2), obstacles))[:, 0]
+    ref = np.stack([np.full(7, 0.05 + 2 * r), np.asarray(xs) - 2.0], axis=1)  # tilted to +x
+    np.testing.assert_allclose(n, ref / np.linalg.norm(ref, axis=1, keepdims=True), atol=1e-12)
+    # half-planes n·(c − o) ≥ r keep out of the disc
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1.0, 5.0, size=(4000, 2))
+    for nj in n:
+        inside = pts[(pts - [2.0, 0.0]) @ nj >= r]
+        assert np.all(np.linalg.norm(inside - [2.0, 0.0], axis=1) >= r - 1e-12)
 
 
 def test_predicted_states_roll_the_s2s_map():

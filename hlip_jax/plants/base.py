@@ -13,11 +13,12 @@ and returns its state at SSP⁻_{k+1}.
 
 A plant is any object with
 
-    init(params, x0: (2, 3), u0: (2,), stance0, key) -> state
+    init(params, x0: (2, 3), u0: (2,), stance0, key, heading0) -> state
     step(params, state, cmd: StepCommand) -> (state, StepResult)
 
 both pure, jit- and vmap-able; ``params`` is the plant's per-scenario pytree (built by the
-plant's ``make_params`` from a :class:`hlip_jax.config.ScenarioConfig`).
+plant's ``make_params`` from a :class:`hlip_jax.config.ScenarioConfig`); ``heading0`` is the
+path's heading at t = 0 [rad], the way a robot with an orientation starts facing.
 """
 
 from __future__ import annotations

@@ -106,8 +106,8 @@ def stepping_law(cmd_u, gain, x_robot, x_hlip):
     return cmd_u + jnp.sum(gain * (x_robot - x_hlip), axis=-1)
 
 
-def init(params: Params, x0, u0, stance0, key) -> State:
-    del params, stance0
+def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
+    del params, stance0, heading0          # the H-LIP has no orientation
     return State(x=x0, u=u0, time=jnp.zeros((), x0.dtype), key=key)
 
 

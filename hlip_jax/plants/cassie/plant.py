@@ -159,11 +159,14 @@ def _foot_xy(terms):
     return outputs.foot_centres(terms)[:, :2]
 
 
-def init(params: Params, x0, u0, stance0, key) -> State:
-    """Cassie at the "stand" keyframe, shifted so its COM is at x0's c (per plane), heading 0.
+def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
+    """Cassie at the "stand" keyframe, turned by ``heading0`` [rad] about the vertical through
+    its COM and shifted so the COM is at x0's c (per plane).
 
-    Both feet are on the ground, so the first step's DSP starts from rest; u0 and stance0
-    are implied by the pose (left foot 0.26 m left of the right one)."""
+    The robot starts facing along the path (``heading0`` is the path's heading at t = 0), so a
+    path that leaves the origin at an angle does not begin with a turn.  Both feet are on the
+    ground, so the first step's DSP starts from rest; u0 and stance0 are implied by the pose
+    (left foot 0.26 m left of the right one)."""
     del u0, stance0
     c = cassie()
     m = c.mj_model
@@ -174,11 +177,19 @@ def init(params: Params, x0, u0, stance0, key) -> State:
     d = mjx.put_data(m, dm, impl=c.mjx_model.impl)
     dt = x0.dtype
     d = jax.tree.map(lambda a: a.astype(dt) if jnp.issubdtype(a.dtype, jnp.floating) else a, d)
-    qpos = d.qpos.at[0].add(x0[0, 0] - com[0]).at[1].add(x0[1, 0] - com[1])
-    d = control.canonical(c, d.replace(qpos=qpos))
+    # root pose: position rotated about the COM, orientation q ← q_z(θ0) ⊗ q (MuJoCo w, x, y, z)
+    th = jnp.asarray(heading0, dt)
+    ch, sh = jnp.cos(th), jnp.sin(th)
+    r0 = c.index.root_qpos
+    px, py, pz, w, qx, qy, qz = (d.qpos[r0 + i] for i in range(7))
+    rx, ry = px - com[0], py - com[1]
+    hw, hz = jnp.cos(th / 2), jnp.sin(th / 2)
+    root = jnp.stack([x0[0, 0] + ch * rx - sh * ry, x0[1, 0] + sh * rx + ch * ry, pz,
+                      hw * w - hz * qz, hw * qx - hz * qy, hw * qy + hz * qx, hw * qz + hz * w])
+    d = control.canonical(c, d.replace(qpos=d.qpos.at[r0:r0 + 7].set(root)))
     feet = outputs.foot_centres(model.robot_terms(c, d))
     return State(d=d, warm=control.warm_zeros(c, dt), time=jnp.zeros((), dt),
-                 yaw=jnp.zeros((), dt), land_xy=feet[0, :2], key=key)
+                 yaw=outputs.wrap(th), land_xy=feet[0, :2], key=key)
 
 
 def _hlip_at(cmd: StepCommand, t_in_ssp):
