@@ -11,8 +11,9 @@ foot-placement error δu_k = u_k − (u_HLIP,k + K e_k) (:func:`placement_errors
 
     e⁺ = A_cl e + w + B δu,
 
-so the disturbance the error dynamics actually see is d = w + B δu = e⁺ − A_cl e; :func:`analyse`
-bounds d when it is given the H-LIP steps (on a plant that places its feet exactly, d = w).  The smallest set that every error trajectory started at 0 stays in is the
+so the disturbance the error dynamics actually see is d = w + B δu = e⁺ − A_cl e;
+:func:`analyse` bounds d when it is given the H-LIP steps (on a plant that places its feet
+exactly, d = w).  The smallest set that every error trajectory started at 0 stays in is the
 minimal robust positively invariant (mRPI) set
 
     F_∞ = ⊕_{i≥0} A_cl^i W.

@@ -17,10 +17,10 @@ with t_j = t_0 + j T, T = T_SSP + T_DSP, θ_j the path heading at t_j, σ_j = +1
 foot is placed by step j (right stance) and −1 otherwise (stance alternates every step), and
 n_{jo} a unit normal of keep-out disc o chosen at the previously planned position of c_{j+1},
 tilted towards the side the plan passes on (:func:`obstacle_normals`; re-chosen every solve;
-the half-plane lies outside the disc, so satisfying it keeps the disc).  The slack enters the cost linearly (an exact
-penalty: for ρ_obs larger than the constraint's multiplier the slack is zero whenever the
-linearised problem is feasible) so the QP is always feasible; a small quadratic term keeps
-P positive definite.  Unused obstacle slots are disabled by infinite bounds.
+the half-plane lies outside the disc, so satisfying it keeps the disc).  The slack enters the
+cost linearly (an exact penalty: for ρ_obs larger than the constraint's multiplier the slack
+is zero whenever the linearised problem is feasible) so the QP is always feasible; a small
+quadratic term keeps P positive definite.  Unused obstacle slots are disabled by infinite bounds.
 """
 
 from __future__ import annotations

@@ -35,8 +35,8 @@ Metrics (per scenario, over valid pre-impact samples k, i.e. steps before any fa
   mRPI set E of ``e⁺ = (A + BK) e + d`` with W the box of that scenario's own samples of the
   error system's disturbance d = w + B δu (the S2S disturbance plus the foot-placement error;
   the errors obey this recursion exactly, so a run started at e = 0 is covered in-sample
-  whenever its W contains the origin, and the held-out figure is the test); the state is [c, p, v] when the gain acts
-  on c, else [p, v] (see :func:`error_model`).
+  whenever its W contains the origin, and the held-out figure is the test); the state is
+  [c, p, v] when the gain acts on c, else [p, v] (see :func:`error_model`).
 * ``cov_{x,y}_heldout``: W and E from the first half of the steps, coverage (outer set) of the
   errors in the second half.
 * ``e_size_{x,y}``: volume of that in-sample E (outer set; [m²·m/s] on [c, p, v], [m·m/s] on
@@ -331,8 +331,9 @@ def _placement(log: dict, s: int) -> np.ndarray:
                                 log["K_gain"][s])
 
 
-def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
-    """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring)."""
+def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> dict:
+    """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring); ``du``
+    (K, 2): the scenario's foot-placement errors (:func:`_placement`)."""
     from hlip_jax import invariant as inv
     out = {}
     A, B, Kg, sl = error_model(log, s)
@@ -341,7 +342,6 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray) -> dict:
     e = np.asarray(log["e"][s], np.float64)[:, :, sl]
     # the error system's disturbance d = w + B δu: w from the robot's own S2S data (same
     # definition as the log's w), δu its foot-placement error
-    du = _placement(log, s)
     w = x[1:] - (np.einsum("ij,kpj->kpi", A, x[:-1]) + B[None, None, :] * u[:-1, :, None])
     w = w + B[None, None, :] * du[:-1, :, None]
     wmask = mask[1:] & mask[:-1]
@@ -418,7 +418,8 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
         t = np.asarray(log["t"][s], np.float64)[mask]
         m["push_peak_err"], m["push_recovery_steps"] = push_recovery(
             d_path, t, push_time, failed=int(np.asarray(log["status"][s])) != 0)
-    du = _placement(log, s)[mask]                                     # (n, 2)
+    du_all = _placement(log, s)                                       # (K, 2)
+    du = du_all[mask]
     h = np.asarray(log["ref_heading"][s], np.float64)[mask]
     m["place_err_rms"] = float(np.sqrt(np.mean(np.sum(du ** 2, axis=1))))
     m["place_err_along"] = float(np.mean(np.cos(h) * du[:, 0] + np.sin(h) * du[:, 1]))
@@ -427,7 +428,7 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
         for j, comp in enumerate("cpv"):
             m[f"emax_{plane}_{comp}"] = float(np.max(e[:, p, j]))
     if with_coverage:
-        m.update(_coverage_metrics(log, s, mask))
+        m.update(_coverage_metrics(log, s, mask, du_all))
     return m
 
 
