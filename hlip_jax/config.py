@@ -134,6 +134,10 @@ class CassieConfig:
     hurry: float = spec(1.0, 1.0, 4.0, "largest speed-up of the swing phase when the stepping law wants the swing foot "
                         "more than 5 cm inward of the narrowest step width (full at 15 cm; a push towards the stance "
                         "side): the early touchdown brings the other foot's outward step sooner (1 = off)")
+    land_adapt: float = spec(0.0, 0.0, 1.0, "rate at which the swing target learns the landing lead (where the foot "
+                             "touches down relative to where it was aimed, along and outward across the heading): "
+                             "each step the lead estimate moves this fraction of the way to the measured one and "
+                             "the next aim is the stepping law's step less the estimate (0 = off)")
     turn_max: float = spec(15.0, 0.5, 90.0, "largest change of the pelvis / swing-foot heading target per step", "deg")
     omega_pelvis: float = spec(4.429, 0.5, 50.0, "pelvis orientation output frequency", "rad/s")
     omega_height: float = spec(5.324, 0.5, 50.0, "COM height output frequency", "rad/s")

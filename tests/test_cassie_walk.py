@@ -219,3 +219,23 @@ def test_nominal_follows_the_orbit_and_stays_bounded_while_turning():
     assert np.abs(x[:, :, 2]).max() < 1.1 * np.hypot(0.5, 0.2), np.abs(x[:, :, 2]).max()
     x, _ = _nominal_run(0.0, np.deg2rad(30), 100)
     assert np.abs(x[:, :, 2]).max() < 0.2 and np.abs(x[:, :, 0]).max() < 0.05
+
+
+def test_landing_lead_learns_a_constant_miss():
+    """ℓ_{k+1} = ℓ_k + κ (m_k − ℓ_k): a constant miss M (heading frame) is approached
+    geometrically, |ℓ_k − M| = (1 − κ)^k |M| (closed form, 1e-12); the miss is rotated into
+    the heading frame and its across part signed outward (a left foot landing 1 cm to the
+    left of its aim and a right foot 1 cm to the right both give +1 cm); clipped to LEAD_MAX."""
+    th, kappa = 0.7, 0.4
+    ch, sh = np.cos(th), np.sin(th)
+    M = np.array([0.012, -0.004])                          # along, outward [m]
+    for outward in (1.0, -1.0):
+        miss_w = M[0] * np.array([ch, sh]) + outward * M[1] * np.array([-sh, ch])
+        lead = jnp.zeros(2)
+        for k in range(1, 9):
+            lead = plant.landing_lead(lead, jnp.asarray(miss_w), th, outward, kappa)
+            np.testing.assert_allclose(np.asarray(lead), M * (1 - (1 - kappa) ** k), atol=1e-12)
+    big = plant.landing_lead(jnp.zeros(2), jnp.array([1.0, 0.0]), 0.0, 1.0, 1.0)
+    np.testing.assert_allclose(np.asarray(big), [plant.LEAD_MAX, 0.0], atol=1e-15)
+    off = plant.landing_lead(jnp.array([0.01, 0.02]), jnp.array([0.3, 0.1]), 0.2, -1.0, 0.0)
+    np.testing.assert_allclose(np.asarray(off), [0.01, 0.02], atol=1e-15)

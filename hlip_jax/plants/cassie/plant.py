@@ -22,8 +22,14 @@ One call of :func:`step` runs SSP⁻_k → SSP⁻_{k+1} as a ``lax.scan`` over 1
   u⊥ = (1 − α) (K e)⊥ + α (K_db e)⊥, α = clip(|e_v⊥| / v_r − 1, 0, 1): a soft (LQR) gain
   spreads a push's velocity error over several steps while the LIP lets it grow.
   Outputs (:mod:`outputs`): pelvis roll/pitch 0 and yaw blended to the heading, COM height
-  z0, swing foot x, y = (1 − c) x⁺ + c (stance + u_des), swing height profile, sole flat and
-  swing-foot yaw (1 − c) yaw⁺ + c θ_d.
+  z0, swing foot x, y = (1 − c) x⁺ + c (stance + u_des − ℓ), swing height profile, sole flat
+  and swing-foot yaw (1 − c) yaw⁺ + c θ_d.
+  Landing lead ℓ (``gait.land_adapt`` = κ > 0; ℓ = 0 otherwise): the swing foot lands ahead of
+  its target (it leads its own reference in late swing and touches down early), so the plant
+  learns the miss m_k = u_robot,k − (u_des,k − ℓ_k) in the step's heading frame (along, and
+  across signed outward for the swing side) and aims the next step at u_des − ℓ with
+  ℓ_{k+1} = ℓ_k + κ (m_k − ℓ_k), each component clipped to ±``LEAD_MAX``.  A constant miss L
+  gives ℓ → L geometrically (factor 1 − κ per step), so u_robot → u_des.
 * Touchdown is scheduled by time; a site of the landing foot joins the contact set only when
   it is on the ground (≤ 4 mm): an early touchdown in the last quarter of SSP turns that
   foot into a contact at once (its outputs are dropped), a late one keeps the foot reaching
@@ -54,6 +60,7 @@ FALL_TILT = 0.7           # [rad] pelvis roll or pitch beyond which it has falle
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
 COM_HEIGHT = (0.65, 0.9)  # [m] allowed COM height targets (z0 is clipped to it)
 HURRY_FROM = 0.05         # [m] how far inward of the narrowest width the wanted step must be to hurry
+LEAD_MAX = 0.05           # [m] largest landing lead the swing target corrects (per component)
 HURRY_SPAN = 0.10         # [m] further inward excess over which the phase rate reaches gait.hurry
 #: the gait's tunable parameters and their defaults live in :class:`hlip_jax.config.CassieConfig`
 #: and reach the controller as per-scenario data (:class:`Gait`)
@@ -86,6 +93,7 @@ class Gait(NamedTuple):
     turn_max: jax.Array
     recovery_speed: jax.Array  # [m/s], 0 = off (see step_with_log)
     hurry: jax.Array           # largest swing-phase rate, 1 = off (see step_with_log)
+    land_adapt: jax.Array      # landing-lead learning rate, 0 = off (see step_with_log)
     hold_unsolved: jax.Array   # 1.0: an unsolved CLF-QP keeps the previous torques, 0.0: last iterate
     gains: clfqp.Gains
 
@@ -115,7 +123,7 @@ def make_gait(cfg=None) -> Gait:
              step_width_max=f(cfg.step_width_max), foot_torque=f(cfg.foot_torque),
              assist_ssp=f(cfg.assist_ssp), assist_dsp=f(cfg.assist_dsp),
              turn_max=f(np.deg2rad(cfg.turn_max)), recovery_speed=f(cfg.recovery_speed),
-             hurry=f(cfg.hurry),
+             hurry=f(cfg.hurry), land_adapt=f(cfg.land_adapt),
              hold_unsolved=f(cfg.qp_fallback == "hold"), gains=clfqp.make_gains(omega, weight=weight))
     _GAIT_CACHE[cfg] = g
     return g
@@ -135,6 +143,7 @@ class State(NamedTuple):
     time: jax.Array          # plant clock at the current SSP⁻ [s]
     yaw: jax.Array           # pelvis heading target at the current SSP⁻ [rad]
     land_xy: jax.Array       # (2,) where the landing foot was aimed [m]
+    lead: jax.Array          # (2,) landing lead estimate [along, outward] of the heading [m]
     key: jax.Array
 
 
@@ -189,7 +198,19 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     d = control.canonical(c, d.replace(qpos=d.qpos.at[r0:r0 + 7].set(root)))
     feet = outputs.foot_centres(model.robot_terms(c, d))
     return State(d=d, warm=control.warm_zeros(c, dt), time=jnp.zeros((), dt),
-                 yaw=outputs.wrap(th), land_xy=feet[0, :2], key=key)
+                 yaw=outputs.wrap(th), land_xy=feet[0, :2], lead=jnp.zeros(2, dt), key=key)
+
+
+def landing_lead(lead, miss, heading, outward, rate):
+    """Next landing-lead estimate ℓ_{k+1} = clip(ℓ_k + κ (m_k − ℓ_k), ±LEAD_MAX) [m].
+
+    ``miss`` (2,) is where the foot landed relative to where it was aimed (world x, y [m]);
+    it is expressed in the step's heading frame (``heading`` [rad]) as [along, across ·
+    ``outward``] (``outward`` = +1 for a left swing foot, −1 for a right one, so a foot that
+    lands wide has a positive second component on either side); κ = ``rate``."""
+    ch, sh = jnp.cos(heading), jnp.sin(heading)
+    seen = jnp.stack([ch * miss[0] + sh * miss[1], outward * (-sh * miss[0] + ch * miss[1])])
+    return jnp.clip(lead + rate * (seen - lead), -LEAD_MAX, LEAD_MAX)
 
 
 def _hlip_at(cmd: StepCommand, t_in_ssp):
@@ -266,6 +287,11 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
     dyaw = jnp.clip(outputs.wrap(cmd.heading - yaw_from), -gait.turn_max, gait.turn_max)
     heading = yaw_from + dyaw
     foot_yaw0 = terms0.foot_yaw
+    # landing lead [along, outward] of the heading → world, outward by the swing side
+    sgn_sw = jnp.where(sw == 0, 1.0, -1.0)
+    ch0, sh0 = jnp.cos(heading), jnp.sin(heading)
+    lead = state.lead.astype(dt)
+    lead_w = lead[0] * jnp.stack([ch0, sh0]) + sgn_sw * lead[1] * jnp.stack([-sh0, ch0])
     kd = hlip.deadbeat_gain(cmd.z0, cmd.t_ssp, cmd.t_dsp).astype(dt)   # [p, v] deadbeat
 
     class Carry(NamedTuple):
@@ -339,8 +365,9 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         y = jnp.zeros(outputs.N_OUT, dt).at[outputs.COM_Z].set(z0)
         yd = jnp.zeros(outputs.N_OUT, dt).at[2].set(cdot * dyaw)
         ydd = jnp.zeros(outputs.N_OUT, dt)
-        # swing foot (in SSP): horizontal blend to stance + u_des, height profile
-        target_xy = st_xy + u_des
+        # swing foot (in SSP): horizontal blend to stance + aim, height profile; the aim is
+        # the law's step less the learned landing lead (the foot lands where the law asks)
+        target_xy = st_xy + u_des - lead_w
         start_xy = carry.sw_start[:2]
         sxy = (1 - cb) * start_xy + cb * target_xy
         vxy = cdot * (target_xy - start_xy)
@@ -443,10 +470,13 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
     sw_xy = jnp.where(sw == 0, feet[0, :2], feet[1, :2])
     u_robot = sw_xy - st_xy
     failed = carry.fell | ~jnp.all(jnp.isfinite(x_r))
+    aim = carry.u_last - lead_w
+    lead_new = landing_lead(lead, u_robot - aim, heading, sgn_sw, gait.land_adapt)
+    lead_new = jnp.where(failed | ~jnp.all(jnp.isfinite(lead_new)), lead, lead_new)
     # the step lasted T_SSP + T_DSP less what a hurried swing saved (to one tick)
     new = State(d=carry.d, warm=carry.warm, time=state.time + t_end - carry.t_saved,
                 yaw=outputs.wrap(heading).astype(dt),
-                land_xy=st_xy + carry.u_last, key=state.key)
+                land_xy=st_xy + aim, lead=lead_new, key=state.key)
     return new, StepResult(x_robot=x_r, u_robot=u_robot, failed=failed), log
 
 
