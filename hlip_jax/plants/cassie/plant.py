@@ -60,8 +60,8 @@ FALL_TILT = 0.7           # [rad] pelvis roll or pitch beyond which it has falle
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
 COM_HEIGHT = (0.65, 0.9)  # [m] allowed COM height targets (z0 is clipped to it)
 HURRY_FROM = 0.05         # [m] how far inward of the narrowest width the wanted step must be to hurry
-LEAD_MAX = 0.05           # [m] largest landing lead the swing target corrects (per component)
 HURRY_SPAN = 0.10         # [m] further inward excess over which the phase rate reaches gait.hurry
+LEAD_MAX = 0.05           # [m] largest landing lead the swing target corrects (per component)
 #: the gait's tunable parameters and their defaults live in :class:`hlip_jax.config.CassieConfig`
 #: and reach the controller as per-scenario data (:class:`Gait`)
 
