@@ -905,6 +905,61 @@ def placement_errors(u_exec, u_hlip, e, K):
     return _f64(u_exec) - _f64(u_hlip) - np.einsum("pj,...pj->...p", Kp, _states(e, n))
 
 
+def to_heading(v, heading):
+    """Per-plane vectors v (..., 2, n) [world x, y] → (sagittal, lateral) of the frame turned by
+    ``heading`` θ (...) [rad]: v'_0 = cos θ v_x + sin θ v_y, v'_1 = −sin θ v_x + cos θ v_y."""
+    v = _f64(v)
+    th = _f64(heading)
+    c, s = np.cos(th)[..., None], np.sin(th)[..., None]
+    return np.stack([c * v[..., 0, :] + s * v[..., 1, :],
+                     -s * v[..., 0, :] + c * v[..., 1, :]], axis=-2)
+
+
+def heading_frame(e, d, heading, A_cl):
+    """Errors and error-system disturbances of a log, rotated from the world planes (x, y) into
+    the path's heading frame (sagittal along θ_k, lateral to its left).
+
+    Per state component j (c, p, v alike: each is a horizontal vector split over the planes),
+    e'_k = R(θ_k) e_k with R(θ) = [[cos θ, sin θ], [−sin θ, cos θ]] acting on the plane axis.
+    When the closed loop is the same in both planes, A_cl commutes with R and the world
+    recursion e_{k+1} = A_cl e_k + d_k becomes
+
+        e'_{k+1} = A_cl e'_k + d'_k,   d'_k = R(θ_{k+1}) d_k + A_cl (R(θ_{k+1}) − R(θ_k)) e_k:
+
+    the disturbance as the walking robot sees it plus the term the turning frame adds (zero on
+    a straight path).  d' = e'_{k+1} − A_cl e'_k exactly, so the mRPI analysis of (A_cl, W') in
+    the heading frame is the same theory as in the world frame; what changes is which
+    disturbances are pooled: a bias along the walking direction (an over-step, a lag) keeps
+    its sign when the path turns round, instead of flipping between +x and −x.
+
+    Args:
+      e: (..., n_steps, 2, n) world-frame errors [m, m/s].
+      d: (..., n_steps − 1, 2, n) world-frame disturbances with e_{k+1} = A_cl e_k + d_k.
+      heading: (..., n_steps) path heading θ_k [rad] at each pre-impact instant.
+      A_cl: (n, n), or (2, n, n) with both planes equal (a different gain per plane does not
+        commute with the rotation; ValueError).
+    Returns (e', d') with the shapes of e and d; plane 0 sagittal, 1 lateral."""
+    e = _f64(e)
+    d = _f64(d)
+    th = _f64(heading)
+    Acl = _f64(A_cl)
+    if Acl.ndim == 3:
+        if Acl.shape[0] != 2 or not np.allclose(Acl[0], Acl[1], rtol=1e-12, atol=1e-12):
+            raise ValueError("A_cl: the heading frame needs the same closed loop in both planes "
+                             "(gain.lateral = 'same'); got different per-plane A + BK")
+        Acl = Acl[0]
+    n = Acl.shape[-1]
+    if e.ndim < 3 or e.shape[-2:] != (2, n):
+        raise ValueError(f"e: shape (..., n_steps, 2, {n}) expected, got {e.shape}")
+    if d.shape != e.shape[:-3] + (e.shape[-3] - 1, 2, n):
+        raise ValueError(f"d: shape {e.shape[:-3] + (e.shape[-3] - 1, 2, n)} expected, got {d.shape}")
+    if th.shape != e.shape[:-2]:
+        raise ValueError(f"heading: shape {e.shape[:-2]} expected (..., n_steps), got {th.shape}")
+    # A_cl (R(θ_{k+1}) − R(θ_k)) e_k: the frame's turn between the two pre-impact instants
+    turn = (to_heading(e[..., :-1, :, :], th[..., 1:]) - to_heading(e[..., :-1, :, :], th[..., :-1])) @ Acl.T
+    return to_heading(e, th), to_heading(d, th[..., 1:]) + turn
+
+
 def estimate_w(samples, mask=None, method: str = "box", quantile: float = 0.99):
     """Disturbance set W from samples (N, n) of one plane (rows with ``mask`` False dropped).
 
@@ -1010,7 +1065,7 @@ def _joint(E_pair, e, mask, tol):
 def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
             quantile: float = 0.99, transient: int = 0, holdout_fraction: float = 0.0,
             seed: int = 0, eps: float = 1e-5, directions=None, tol: float = 1e-9,
-            min_halfwidth=None, u_hlip=None) -> Analysis:
+            min_halfwidth=None, u_hlip=None, heading=None) -> Analysis:
     """Per-plane W / E / coverage of a whole log.
 
     Args:
@@ -1027,6 +1082,9 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
         ``numpy.random.default_rng(seed)``: W is re-estimated on the training scenarios and
         coverage measured on the held-out ones.  0 skips the held-out part.
       eps, directions, min_halfwidth: passed to :func:`mrpi`.
+      heading: (..., n_steps) path heading θ_k [rad], or None.  Given, the planes are the
+        heading frame's sagittal and lateral ones (:func:`heading_frame`; needs the same gain
+        in both planes); None keeps the world's x and y.
     """
     x = _f64(x_robot)
     if x.ndim < 4:
@@ -1050,6 +1108,8 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
         du = placement_errors(u_exec, u_hlip, e, Kp)                  # (..., n_steps, 2)
         w = w + Bp * du[..., :-1, :, None]
     es = _states(e, n)
+    if heading is not None:
+        es, w = heading_frame(es, w, heading, Acl)
     alive = np.cumprod(np.asarray(valid, bool), axis=-1).astype(bool)
     emask = alive & (np.arange(alive.shape[-1]) >= transient)  # = step_mask, in numpy
 

@@ -10,7 +10,8 @@ Reads only the store (``manifest.json``, ``chunks/``, ``summary.csv``; see
   global position and velocity against time (reference dashed), and the step sizes in the
   sagittal and lateral planes (steps rotated into the path heading θ_d(t_k)); the invariant-set
   figure per plane (:func:`hlip_jax.invariant.plot_planes`: E of the [p, v] error dynamics
-  with the observed errors); and a coverage table — W, E and the in-sample bracket
+  with the observed errors; planes of the path's heading frame when the gain is the same in
+  both, :func:`hlip_jax.store.analysis_frame`); and a coverage table — W, E and the in-sample bracket
   (inner F_s, outer F_s/(1−α)) from all runs of that path sharing the representative's gain,
   plus held-out coverage (W from half of those runs, coverage on the other half; with a single
   run, the per-run figure of ``summary.csv``: W from the first half of its steps).
@@ -175,9 +176,12 @@ def invariant_analysis(log, members: list[int]):
     sel = np.asarray(members)
     valid = np.cumprod(np.asarray(log["valid"][sel], bool), axis=1).astype(bool)
     hold = 0.5 if len(members) >= 2 else 0.0
+    heading = (np.asarray(log["ref_heading"][sel], np.float64)
+               if store.analysis_frame(log, members[0]) == "heading" else None)
     return inv.analyse(log["x_robot"][sel], log["u_robot"][sel], valid, log["e"][sel],
                        A, B, K, W_estimator="box", holdout_fraction=hold, seed=0,
-                       min_halfwidth=store.W_MIN_HALFWIDTH, u_hlip=log["u_hlip"][sel])
+                       min_halfwidth=store.W_MIN_HALFWIDTH, u_hlip=log["u_hlip"][sel],
+                       heading=heading)
 
 
 def fig_invariant(an, log, members, path: Path, title: str) -> None:
@@ -186,16 +190,25 @@ def fig_invariant(an, log, members, path: Path, title: str) -> None:
     sel = np.asarray(members)
     valid = np.cumprod(np.asarray(log["valid"][sel], bool), axis=1).astype(bool)
     sl = store.error_model(log, members[0])[3]
-    e = np.asarray(log["e"][sel], np.float64)[..., sl][valid]        # (n, 2, dim)
+    e = np.asarray(log["e"][sel], np.float64)[..., sl]
+    if store.analysis_frame(log, members[0]) == "heading":
+        e = inv.to_heading(e, np.asarray(log["ref_heading"][sel], np.float64))
+    e = e[valid]                                                     # (n, 2, dim)
     fig = inv.plot_planes((an.planes[0].E, an.planes[1].E), (e[:, 0], e[:, 1]),
                           title=title + " — error invariant sets E and errors e_k")
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
 
 
-def _coverage_rows(an, n_runs: int, row_summary: dict | None) -> list[list[str]]:
+def plane_names(frame: str) -> tuple[str, str]:
+    """Row labels of the two analysis planes for ``frame`` ("heading" or "world")."""
+    return (("sagittal", "lateral") if frame == "heading" else ("world x", "world y"))
+
+
+def _coverage_rows(an, n_runs: int, row_summary: dict | None,
+                   frame: str = "heading") -> list[list[str]]:
     rows = []
-    for p, plane in enumerate(("sagittal (x)", "lateral (y)")):
+    for p, plane in enumerate(plane_names(frame)):
         pa = an.planes[p]
         W = pa.W
         wlo = ", ".join(f"{v:.3g}" for v in np.asarray(W.lo)) if hasattr(W, "lo") else "hull"
@@ -203,7 +216,8 @@ def _coverage_rows(an, n_runs: int, row_summary: dict | None) -> list[list[str]]
         if pa.heldout is not None:
             held = f"{_fmt(pa.heldout.inner)} – {_fmt(pa.heldout.outer)} (n={pa.heldout.n})"
         elif row_summary is not None:
-            held = f"{_fmt(row_summary.get(f'cov_{plane[-2]}_heldout', math.nan))} (later half of the steps)"
+            key = "cov_" + "xy"[p] + "_heldout"
+            held = f"{_fmt(row_summary.get(key, math.nan))} (later half of the steps)"
         else:
             held = "–"
         rows.append([plane, f"[{wlo}] – [{whi}]", str(pa.s), f"{pa.alpha:.3g}",
@@ -461,7 +475,8 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
                                 for a in man.get("axes", [])) or "none"],
         ["chunk size", man.get("batch")],
         ["JAX", f"{man.get('versions', {}).get('jax', '?')} on {jaxinfo.get('backend', '?')} "
-                f"({', '.join(jaxinfo.get('devices', []))})"],
+                f"({', '.join(jaxinfo.get('devices', []))})"
+                + ({True: ", float64", False: ", float32"}.get(jaxinfo.get("x64"), ""))],
         ["git commit", man.get("git_commit") or "–"],
         ["started / ended", f"{man.get('start_time')} / {man.get('end_time')}"],
         ["simulation time", f"{man.get('seconds', math.nan):.1f} s"],
@@ -497,6 +512,7 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
                 and bool(np.asarray(log["valid"][pos[i]]).any())]
         doc.h(3, "Error invariant sets and coverage")
         try:
+            frame = store.analysis_frame(log, same[0])
             an = invariant_analysis(log, same)
             fig_invariant(an, log, same, fig_dir / f"{slug}_invariant.png", pname)
             doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")
@@ -510,14 +526,19 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
                   "F_s/(1−α)); held-out: " + ("W from half of the runs, coverage on the others."
                                                if len(same) >= 2 else
                                                "W from the first half of the steps, coverage "
-                                               "of the errors in the second half."))
-            doc.table(COVERAGE_HEAD, _coverage_rows(an, len(same), rep))
-            for p, plane in enumerate(("x", "y")):
+                                               "of the errors in the second half.")
+                  + (" Planes: sagittal along the path heading θ_d(t_k), lateral to its left "
+                     "(errors and disturbances rotated into that frame at every step)."
+                     if frame == "heading" else
+                     " Planes: world x and y (the gain differs between the planes, which a "
+                     "rotation into the heading frame would not respect)."))
+            doc.table(COVERAGE_HEAD, _coverage_rows(an, len(same), rep, frame))
+            for p, plane in enumerate(plane_names(frame)):
                 pa = an.planes[p]
                 cov_summary.append([pname, plane, len(same), _fmt(pa.coverage.inner),
                                     _fmt(pa.coverage.outer),
                                     _fmt(pa.heldout.outer) if pa.heldout else
-                                    _fmt(rep.get(f"cov_{plane}_heldout", math.nan))])
+                                    _fmt(rep.get(f"cov_{'xy'[p]}_heldout", math.nan))])
         except Exception as err:   # unstable gain, too few samples: say so, keep going
             doc.p(f"invariant analysis not available for this path: {type(err).__name__}: {err}")
 

@@ -39,6 +39,11 @@ Metrics (per scenario, over valid pre-impact samples k, i.e. steps before any fa
   [c, p, v] when the gain acts on c, else [p, v] (see :func:`error_model`).
 * ``cov_{x,y}_heldout``: W and E from the first half of the steps, coverage (outer set) of the
   errors in the second half.
+* The coverage and E-size metrics are per plane of the scenario's :func:`analysis_frame`:
+  x = sagittal (along the path heading θ_d(t_k)) and y = lateral when the gain is the same in
+  both planes (errors and disturbances rotated step by step,
+  :func:`hlip_jax.invariant.heading_frame`), world x and y otherwise.  ``emax_*`` stay in the
+  world frame.
 * ``e_size_{x,y}``: volume of that in-sample E (outer set; [m²·m/s] on [c, p, v], [m·m/s] on
   [p, v]): the size of the error tube a gain earns on this run.
 * ``push_peak_err`` [m]: largest COM-to-path distance from the first push's start on
@@ -331,6 +336,15 @@ def _placement(log: dict, s: int) -> np.ndarray:
                                 log["K_gain"][s])
 
 
+def analysis_frame(log: dict, s: int) -> str:
+    """The frame of scenario ``s``'s per-plane error analysis: "heading" (sagittal along the
+    path heading θ_d(t_k), lateral to its left; :func:`hlip_jax.invariant.heading_frame`) when
+    the stepping gain is the same in both planes, else "world" (x, y): a different gain per
+    plane does not commute with the rotation."""
+    K = np.asarray(log["K_gain"][s], np.float64)
+    return "heading" if K.ndim == 1 or np.array_equal(K[0], K[1]) else "world"
+
+
 def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> dict:
     """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring); ``du``
     (K, 2): the scenario's foot-placement errors (:func:`_placement`)."""
@@ -344,6 +358,11 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> di
     # definition as the log's w), δu its foot-placement error
     w = x[1:] - (np.einsum("ij,kpj->kpi", A, x[:-1]) + B[None, None, :] * u[:-1, :, None])
     w = w + B[None, None, :] * du[:-1, :, None]
+    frame = analysis_frame(log, s)
+    if frame == "heading":
+        Acl0 = A + np.outer(B, Kg[0])
+        e, w = inv.heading_frame(np.where(mask[:, None, None], e, 0.0), w,
+                                 np.asarray(log["ref_heading"][s], np.float64), Acl0)
     wmask = mask[1:] & mask[:-1]
     nK = int(mask.sum())
     half = nK // 2

@@ -48,7 +48,11 @@ def test_tables(tiny_report):
     _, html, md = tiny_report
     for head in report.COVERAGE_HEAD:
         assert head in md
-    assert md.count("| sagittal (x) |") == 2 and md.count("| lateral (y) |") == 2
+    # same gain in both planes: the planes of the path heading frame, one row per path in its
+    # coverage table and one in the coverage summary
+    assert md.count("| sagittal |") == 4 and md.count("| lateral |") == 4
+    assert "world x" not in md
+    assert "Planes: sagittal along the path heading" in md
     assert "Coverage summary" in md and "held-out" in md
     assert "## Failures (2)" in md and "fell" in md
     assert "Per-scenario summary" in md
