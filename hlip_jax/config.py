@@ -82,7 +82,9 @@ class PushConfig:
 
 @dataclass(frozen=True)
 class DisturbanceConfig:
-    """Disturbances of the H-LIP plant (pushes also act on Cassie)."""
+    """Disturbances of the plant.  Cassie takes ``noise_v`` (a random pelvis force per step that
+    changes the COM velocity by up to ±noise_v), ``step_error`` (an offset of the landing
+    target) and ``pushes``; the other fields model the H-LIP plant only (rejected for Cassie)."""
     noise_p: float = spec(0.0, 0.0, 1.0, "half-width of the uniform S2S noise on p (both planes)", "m")
     noise_v: float = spec(0.0, 0.0, 5.0, "half-width of the uniform S2S noise on v (both planes)", "m/s")
     step_error: float = spec(0.0, 0.0, 0.5, "half-width of the uniform step-placement error", "m")

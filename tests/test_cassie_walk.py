@@ -107,6 +107,11 @@ def test_make_params_pushes_and_validation():
     np.testing.assert_allclose(g.gains.kd[6:14], 40.0)
     with pytest.raises(ValueError, match="pushes"):
         plant.make_params(cfg, 0)
+    # step noise of the sweep's disturbance table reaches the plant (0 by default)
+    assert float(plant.make_params(cfg, 1).noise_v) == 0.0
+    cfgn = ScenarioConfig(plant="cassie", disturbance=DisturbanceConfig(noise_v=0.05, step_error=0.02))
+    pn = plant.make_params(cfgn, 1)
+    assert float(pn.noise_v) == 0.05 and float(pn.step_error) == 0.02
     # push-recovery settings are data; off by default
     assert float(g.hurry) == 1.0 and float(g.recovery_speed) == 0.0
     g4 = plant.make_params(ScenarioConfig(plant="cassie", cassie=CassieConfig(hurry=2.0, recovery_speed=0.3)), 1).gait
@@ -160,7 +165,9 @@ def test_short_walk_on_mjx():
     turning one 30 °/s ± 20 % (a short window right after the start from standing: the 10 %
     targets over 10 s are checked by benchmarks/cassie_walk_bench.py).  A fifth robot, walking
     forward with the landing lead learnt (``cassie.land_adapt`` = 0.5), lands on the law's step
-    with under half the plain robot's mean over-step."""
+    with under half the plain robot's mean over-step.  A sixth, walking forward with step noise
+    (``noise_v`` 0.1 m/s, ``step_error`` 3 cm), walks and spreads its landings and its S2S
+    velocity residual more than the plain robot."""
     z0, ts, td = 0.8413, 0.2726, 0.02
     A3, B3 = hlip.s2s_matrices(z0, ts, td)
     k = np.asarray(hlip.lqr_gain(A3, B3, jnp.diag(jnp.array([0.07065, 1.0, 0.247])),
@@ -169,12 +176,17 @@ def test_short_walk_on_mjx():
     # early in step 4: in the step after it the law wants the swing foot past the stance foot,
     # so that swing is hurried
     # a fifth walks forward like the second, learning its landing lead (cassie.land_adapt)
+    # a sixth walks forward like the second with step noise: a random pelvis force worth
+    # ±0.1 m/s per step and a landing target offset by up to ±3 cm
     T = ts + td
-    gaits = [CassieConfig()] * 3 + [CassieConfig(hurry=2.0), CassieConfig(land_adapt=0.5)]
+    gaits = [CassieConfig()] * 3 + [CassieConfig(hurry=2.0), CassieConfig(land_adapt=0.5),
+                                    CassieConfig()]
     t_push = 4 * T + td + 0.03
-    log, _ = plant.walk_orbits([0.0, 0.5, 0.0, 0.0, 0.5], [0.0] * 5, [0.0, 0.0, np.deg2rad(30), 0.0, 0.0], 8,
+    log, _ = plant.walk_orbits([0.0, 0.5, 0.0, 0.0, 0.5, 0.5], [0.0] * 6,
+                               [0.0, 0.0, np.deg2rad(30), 0.0, 0.0, 0.0], 8,
                                z0=z0, t_ssp=ts, t_dsp=td, width=0.15, gain=np.tile(k, (2, 1)),
-                               gait=gaits, pushes=[(t_push, t_push + 0.1, 0.0, np.array([0, 0, 0, -200.0, 0]))])
+                               gait=gaits, pushes=[(t_push, t_push + 0.1, 0.0, np.array([0, 0, 0, -200.0, 0, 0]))],
+                               noise_v=[0, 0, 0, 0, 0, 0.1], step_error=[0, 0, 0, 0, 0, 0.03])
     # unhurried robots: every step lasts T_SSP + T_DSP exactly (float64: 1e-12 s); the pushed
     # one too until the push, then one of its steps lands at least 10 ms early (measured: 106 ms
     # early, in step 5) and none takes longer than T
@@ -190,6 +202,19 @@ def test_short_walk_on_mjx():
     print("mean over-step plain / learning [m]:", du[1].mean(), du[4].mean())
     assert not log.failed[4].any()
     assert abs(du[4].mean()) < 0.5 * abs(du[1].mean()), (du[1], du[4])
+    # the noisy robot walks, and its landing and S2S velocity residual spread more than the
+    # plain robot's (same task, same gait)
+    assert not log.failed[5].any()
+    du_all = invariant.placement_errors(log.u_robot, log.u_hlip, log.e, k)[:, 2:]
+    rms_du = np.sqrt(np.mean((du_all - du_all.mean(axis=1, keepdims=True)) ** 2, axis=(1, 2)))
+    rms_wv = np.sqrt(np.mean(log.w[:, 2:, :, 2] ** 2, axis=(1, 2)))
+    print("placement spread plain / noisy [m]:", rms_du[1], rms_du[5],
+          "; S2S |w_v| RMS plain / noisy [m/s]:", rms_wv[1], rms_wv[5])
+    # measured (float64): placement spread 0.6 vs 4.2 cm, |w_v| RMS 0.030 vs 0.088 m/s.  A
+    # target offset uniform in ±3 cm alone has an RMS of 1.7 cm, a velocity kick uniform in
+    # ±0.1 m/s one of 0.058 m/s; the bounds sit under those and above the plain robot's
+    assert rms_du[5] > 0.015 and rms_du[5] > 2.0 * rms_du[1], rms_du
+    assert rms_wv[5] > 0.05 and rms_wv[5] > 1.5 * rms_wv[1], rms_wv
     log = jax.tree.map(lambda a: a[:3], log)
     assert not log.failed.any(), log.failed
     assert np.all(np.isfinite(log.x_robot)) and np.all(np.isfinite(log.w))

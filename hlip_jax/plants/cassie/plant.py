@@ -30,6 +30,11 @@ One call of :func:`step` runs SSP⁻_k → SSP⁻_{k+1} as a ``lax.scan`` over 1
   across signed outward for the swing side) and aims the next step at u_des − ℓ with
   ℓ_{k+1} = ℓ_k + κ (m_k − ℓ_k), each component clipped to ±``LEAD_MAX``.  A constant miss L
   gives ℓ → L geometrically (factor 1 − κ per step), so u_robot → u_des.
+* Step noise (``disturbance.noise_v``, ``disturbance.step_error``; the PRNG key of the
+  state, split once per step): a horizontal pelvis force F = M dv / (T_SSP + T_DSP) held over
+  the step, dv uniform in ±noise_v per world axis (M the robot's mass: it changes the COM
+  velocity by about dv over the step), and a landing-target offset uniform in ±step_error
+  per world axis.  Replicates of a scenario (``seed``) then walk different steps.
 * Touchdown is scheduled by time; a site of the landing foot joins the contact set only when
   it is on the ground (≤ 4 mm): an early touchdown in the last quarter of SSP turns that
   foot into a contact at once (its outputs are dropped), a late one keeps the foot reaching
@@ -135,6 +140,8 @@ class Params(NamedTuple):
     push_force: jax.Array    # (P, 2) world x, y [N]
     ticks: jax.Array         # (n_ticks,) zeros: its length is the static tick budget per step
     gait: Gait
+    noise_v: jax.Array       # half-width of the per-step COM velocity noise [m/s]
+    step_error: jax.Array    # half-width of the landing-target error [m]
 
 
 class State(NamedTuple):
@@ -161,7 +168,8 @@ def make_params(cfg, n_push: int, t_step: float = 0.0) -> Params:
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
     ticks = np.zeros(tick_budget(max(t_step, cfg.hlip.t_ssp + cfg.hlip.t_dsp)))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,
-                  gait=make_gait(cfg.cassie))
+                  gait=make_gait(cfg.cassie), noise_v=np.float64(cfg.disturbance.noise_v),
+                  step_error=np.float64(cfg.disturbance.step_error))
 
 
 def _foot_xy(terms):
@@ -293,6 +301,12 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
     lead = state.lead.astype(dt)
     lead_w = lead[0] * jnp.stack([ch0, sh0]) + sgn_sw * lead[1] * jnp.stack([-sh0, ch0])
     kd = hlip.deadbeat_gain(cmd.z0, cmd.t_ssp, cmd.t_dsp).astype(dt)   # [p, v] deadbeat
+    # step noise: a pelvis force held over the step that changes the COM velocity by dv,
+    # and an offset of the landing target
+    key, k_v, k_u = jax.random.split(state.key, 3)
+    dv = jax.random.uniform(k_v, (2,), dt, -1.0, 1.0) * jnp.asarray(params.noise_v, dt)
+    f_noise = jnp.asarray(c.total_mass, dt) * dv / t_end
+    du_err = jax.random.uniform(k_u, (2,), dt, -1.0, 1.0) * jnp.asarray(params.step_error, dt)
 
     class Carry(NamedTuple):
         d: mjx.Data
@@ -367,7 +381,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         ydd = jnp.zeros(outputs.N_OUT, dt)
         # swing foot (in SSP): horizontal blend to stance + aim, height profile; the aim is
         # the law's step less the learned landing lead (the foot lands where the law asks)
-        target_xy = st_xy + u_des - lead_w
+        target_xy = st_xy + u_des - lead_w + du_err
         start_xy = carry.sw_start[:2]
         sxy = (1 - cb) * start_xy + cb * target_xy
         vxy = cdot * (target_xy - start_xy)
@@ -435,7 +449,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
         # ---- push and physics
         t_abs = state.time + tau_t
         on = (t_abs >= params.push_start) & (t_abs < params.push_end)
-        f = jnp.sum(jnp.where(on[:, None], params.push_force, 0.0), axis=0)
+        f = jnp.sum(jnp.where(on[:, None], params.push_force, 0.0), axis=0) + f_noise
         d_new = control.physics(c, d, res.tau, jnp.concatenate([f, jnp.zeros(1, dt)]))
         keep = active & ~carry.fell
         d_next = jax.tree.map(lambda a, b: jnp.where(keep, a, b), d_new, d)
@@ -470,13 +484,13 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
     sw_xy = jnp.where(sw == 0, feet[0, :2], feet[1, :2])
     u_robot = sw_xy - st_xy
     failed = carry.fell | ~jnp.all(jnp.isfinite(x_r))
-    aim = carry.u_last - lead_w
+    aim = carry.u_last - lead_w + du_err
     lead_new = landing_lead(lead, u_robot - aim, heading, sgn_sw, gait.land_adapt)
     lead_new = jnp.where(failed | ~jnp.all(jnp.isfinite(lead_new)), lead, lead_new)
     # the step lasted T_SSP + T_DSP less what a hurried swing saved (to one tick)
     new = State(d=carry.d, warm=carry.warm, time=state.time + t_end - carry.t_saved,
                 yaw=outputs.wrap(heading).astype(dt),
-                land_xy=st_xy + aim, lead=lead_new, key=state.key)
+                land_xy=st_xy + aim, lead=lead_new, key=key)
     return new, StepResult(x_robot=x_r, u_robot=u_robot, failed=failed), log
 
 
@@ -559,13 +573,15 @@ def nominal_next(A, Bm, k_h, x_h, u_h, z0, t_ssp, t_dsp, v_fwd, v_lat, width, he
 
 def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_dsp=0.1,
                 width=0.25, gain=None, gait=None, pushes=None, batch_step=None,
-                return_ticks=False):
+                return_ticks=False, noise_v=0.0, step_error=0.0):
     """Closed loop without MPC: the H-LIP nominal follows P1 (sagittal) / P2 (lateral) orbit
     steps in the heading frame, x_H,k+1 = A x_H,k + B u_H,k, heading θ_k = yaw_rate · k T;
     the robot steps by the stepping law (deadbeat K by default).  One robot per entry of
     ``v_fwd``, ``v_lat``, ``yaw_rate`` (arrays of equal length B, vmapped); ``z0``, ``t_ssp``,
     ``t_dsp``, ``width`` are scalars or per-robot arrays, ``gain`` is (2, 3) or (B, 2, 3),
-    ``gait`` a :class:`hlip_jax.config.CassieConfig` or a sequence of B of them.
+    ``gait`` a :class:`hlip_jax.config.CassieConfig` or a sequence of B of them; ``noise_v``
+    [m/s] and ``step_error`` [m] (scalars or per robot) the step noise of the module doc, drawn
+    from robot i's key PRNGKey(i).
     Returns (WalkLog, per-step tick logs if ``return_ticks``)."""
     v_fwd, v_lat, yaw_rate = (np.atleast_1d(np.asarray(a, float)) for a in (v_fwd, v_lat, yaw_rate))
     B = v_fwd.size
@@ -587,7 +603,9 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
     params = Params(push_start=np.full((B, n_push), -1.0), push_end=np.full((B, n_push), -1.0),
                     push_force=np.zeros((B, n_push, 2)),
                     ticks=np.zeros((B, tick_budget(float(T.max())))),
-                    gait=jax.tree.map(lambda *a: np.stack(a), *gaits))
+                    gait=jax.tree.map(lambda *a: np.stack(a), *gaits),
+                    noise_v=np.broadcast_to(np.asarray(noise_v, float), (B,)).copy(),
+                    step_error=np.broadcast_to(np.asarray(step_error, float), (B,)).copy())
     if pushes is not None:
         for i, (t0, t1, fx, fy) in enumerate(pushes):
             params.push_start[:, i], params.push_end[:, i] = t0, t1
