@@ -955,9 +955,10 @@ def heading_frame(e, d, heading, A_cl):
         raise ValueError(f"d: shape {e.shape[:-3] + (e.shape[-3] - 1, 2, n)} expected, got {d.shape}")
     if th.shape != e.shape[:-2]:
         raise ValueError(f"heading: shape {e.shape[:-2]} expected (..., n_steps), got {th.shape}")
+    e_rot = to_heading(e, th)
     # A_cl (R(θ_{k+1}) − R(θ_k)) e_k: the frame's turn between the two pre-impact instants
-    turn = (to_heading(e[..., :-1, :, :], th[..., 1:]) - to_heading(e[..., :-1, :, :], th[..., :-1])) @ Acl.T
-    return to_heading(e, th), to_heading(d, th[..., 1:]) + turn
+    turn = (to_heading(e[..., :-1, :, :], th[..., 1:]) - e_rot[..., :-1, :, :]) @ Acl.T
+    return e_rot, to_heading(d, th[..., 1:]) + turn
 
 
 def estimate_w(samples, mask=None, method: str = "box", quantile: float = 0.99):

@@ -196,6 +196,20 @@ def test_metrics_against_hand_computation():
     assert m["max_track_err"] <= d.max() + 1e-15
 
 
+def _rerun_with_placement(log: dict, du: np.ndarray) -> None:
+    """Re-run scenario 0's robot of a fake log (in place) with the foot-placement errors du
+    (K, 2) added to the stepping law's steps; the H-LIP and the S2S noise w stay."""
+    A, B, K = log["A"][0], log["B"][0], log["K_gain"][0]
+    x_h, x_r, u_h = log["x_hlip"][0], log["x_robot"][0].copy(), log["u_hlip"][0]
+    u_r = log["u_robot"][0].copy()
+    n = x_r.shape[0]
+    for k in range(n):
+        u_r[k] = u_h[k] + np.sum(K * (x_r[k] - x_h[k]), axis=1) + du[k]
+        if k + 1 < n:
+            x_r[k + 1] = x_r[k] @ A.T + np.outer(u_r[k], B) + log["w"][0, k]
+    log["x_robot"][0], log["u_robot"][0], log["e"][0] = x_r, u_r, x_r - x_h
+
+
 def test_placement_metrics_and_coverage_count_the_placement_error():
     """A robot that lands its steps a_k = 1 cm ± 1.2 cm (alternating) further along its
     (constant, 30°) heading than the law asks: place_err_along = mean a_k, place_err_rms =
@@ -206,17 +220,10 @@ def test_placement_metrics_and_coverage_count_the_placement_error():
     m0 = store.scenario_metrics(log, 0, with_coverage=False)
     assert m0["place_err_rms"] < 1e-12 and abs(m0["place_err_along"]) < 1e-12
     th = np.deg2rad(30.0)
-    A, B, K = log["A"][0], log["B"][0], log["K_gain"][0]
     n = log["x_robot"].shape[1]
     a = 0.01 + 0.012 * (-1.0) ** np.arange(n)
     du = a[:, None] * np.array([np.cos(th), np.sin(th)])
-    x_h, x_r, u_h = log["x_hlip"][0], log["x_robot"][0].copy(), log["u_hlip"][0]
-    u_r = log["u_robot"][0].copy()
-    for k in range(n):                       # re-run the robot with the placement error
-        u_r[k] = u_h[k] + np.sum(K * (x_r[k] - x_h[k]), axis=1) + du[k]
-        if k + 1 < n:
-            x_r[k + 1] = x_r[k] @ A.T + np.outer(u_r[k], B) + log["w"][0, k]
-    log["x_robot"][0], log["u_robot"][0], log["e"][0] = x_r, u_r, x_r - x_h
+    _rerun_with_placement(log, du)
     log["ref_heading"][0] = th
     m = store.scenario_metrics(log, 0, with_coverage=True)
     v = np.asarray(log["valid"][0], bool)
@@ -375,7 +382,6 @@ def test_coverage_in_the_heading_frame_survives_turning_round():
     pushed the other way along x (measured 0.06; bound 0.2)."""
     sc = dataclasses.replace(_tiny().scenarios[0], duration=40.0)
     log = fake_simulate([sc])._asdict()
-    A, B, K = log["A"][0], log["B"][0], log["K_gain"][0]
     n = log["x_robot"].shape[1]
     k_turn = n // 2 - 6
     th = np.deg2rad(np.clip(15.0 * (np.arange(n) - k_turn), 0.0, 180.0))
@@ -383,18 +389,11 @@ def test_coverage_in_the_heading_frame_survives_turning_round():
     a = rng.uniform(0.0, 0.012, n)
     b = rng.uniform(-0.002, 0.002, n)
     du = np.stack([a * np.cos(th) - b * np.sin(th), a * np.sin(th) + b * np.cos(th)], axis=1)
-    x_h, x_r, u_h = log["x_hlip"][0], log["x_robot"][0].copy(), log["u_hlip"][0]
-    u_r = log["u_robot"][0].copy()
-    for k in range(n):
-        u_r[k] = u_h[k] + np.sum(K * (x_r[k] - x_h[k]), axis=1) + du[k]
-        if k + 1 < n:
-            x_r[k + 1] = x_r[k] @ A.T + np.outer(u_r[k], B) + log["w"][0, k]
-    log["x_robot"][0], log["u_robot"][0], log["e"][0] = x_r, u_r, x_r - x_h
+    _rerun_with_placement(log, du)
     log["ref_heading"][0] = th
     assert store.analysis_frame(log, 0) == "heading"
     m = store.scenario_metrics(log, 0)
     world = {k: v.copy() for k, v in log.items()}
-    world["K_gain"] = world["K_gain"].copy()
     world["K_gain"][0, 1] += 1e-9
     assert store.analysis_frame(world, 0) == "world"
     mw = store.scenario_metrics(world, 0)
