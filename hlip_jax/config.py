@@ -15,6 +15,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
+from hlip_jax.plants.cassie import gaits
+
 INF = float("inf")
 
 
@@ -117,37 +119,31 @@ class PathConfig:
 class CassieConfig:
     """Gait and controller parameters of the Cassie plant (ignored by the H-LIP plant).
 
-    All are per-scenario data: a sweep over them shares one compiled program.  Output
-    frequencies ω set the PD/CLF gains k_p = ω², k_d = 2ω of :mod:`hlip_jax.plants.cassie.clfqp`."""
-    clearance: float = spec(0.08124, 0.0, 0.3, "swing-foot apex height", "m")
-    strike: float = spec(0.008274, 0.0, 0.1, "swing target depth below the ground at the end of SSP", "m")
-    reach: float = spec(0.9029, 0.3, 1.0, "fraction of SSP at which the swing foot reaches its target")
+    ``gait`` names a preset of :mod:`hlip_jax.plants.cassie.gaits` that fills every gait field
+    the sweep file leaves unset (here and in ``hlip``, ``gain``, ``mpc``); the defaults below are
+    the "paper" preset's.  All numeric fields are per-scenario data: a sweep over them shares one
+    compiled program.  Output frequencies ω set the PD/CLF gains k_p = ω², k_d = 2ω of
+    :mod:`hlip_jax.plants.cassie.clfqp`."""
+    gait: str = spec("paper", doc="gait preset whose values fill the unset gait fields",
+                     choices=tuple(gaits.PRESETS))
+    clearance: float = spec(0.08, 0.0, 0.3, "swing-foot apex height", "m")
+    strike: float = spec(0.005, 0.0, 0.1, "swing target depth below the ground at the end of SSP", "m")
+    reach: float = spec(0.92, 0.3, 1.0, "fraction of SSP at which the swing foot reaches its target")
     freeze: float = spec(1.0, 0.3, 1.0, "fraction of SSP after which the step target is held")
-    early_contact: float = spec(0.7258, 0.3, 1.0, "fraction of SSP after which a touching swing foot becomes a contact")
+    early_contact: float = spec(0.75, 0.3, 1.0, "fraction of SSP after which a detected swing-foot "
+                                "touchdown ends the SSP")
     step_length_max: float = spec(0.6, 0.1, 1.0, "|step length| clip of the swing target, along the heading", "m")
     step_width_min: float = spec(0.1, 0.0, 0.5, "minimum |step width| of the swing target, across the heading", "m")
-    step_width_max: float = spec(0.5, 0.1, 1.0, "maximum |step width| of the swing target", "m")
-    foot_torque: float = spec(0.8407, 0.0, 1.0, "foot-motor torque budget of a foot on the ground, fraction of its limit (0 = passive pivot)")
-    assist_ssp: float = spec(1.289, 0.0, 10.0, "factor on the COM-follows-H-LIP output's weight in SSP, along the heading (0 = off)")
-    assist_dsp: float = spec(2.189, 0.0, 10.0, "factor on the COM-follows-H-LIP output's weight in DSP, both directions (0 = off)")
-    recovery_speed: float = spec(0.0, 0.0, 5.0, "lateral velocity error at SSP⁻ (across the heading) above which the "
-                                 "step across the heading blends from the stepping gain to the H-LIP deadbeat gain on [p, v], "
-                                 "fully at twice the value (0 = off)", "m/s")
-    hurry: float = spec(1.0, 1.0, 4.0, "largest speed-up of the swing phase when the stepping law wants the swing foot "
-                        "more than 5 cm inward of the narrowest step width (full at 15 cm; a push towards the stance "
-                        "side): the early touchdown brings the other foot's outward step sooner (1 = off)")
-    land_adapt: float = spec(0.0, 0.0, 1.0, "rate at which the swing target learns the landing lead (where the foot "
-                             "touches down relative to where it was aimed, along and outward across the heading): "
-                             "each step the lead estimate moves this fraction of the way to the measured one and "
-                             "the next aim is the stepping law's step less the estimate (0 = off)")
-    turn_max: float = spec(15.0, 0.5, 90.0, "largest change of the pelvis / swing-foot heading target per step", "deg")
-    omega_pelvis: float = spec(4.429, 0.5, 50.0, "pelvis orientation output frequency", "rad/s")
-    omega_height: float = spec(5.324, 0.5, 50.0, "COM height output frequency", "rad/s")
-    omega_com: float = spec(2.452, 0.5, 50.0, "COM horizontal (ankle assist) output frequency", "rad/s")
-    omega_swing: float = spec(26.37, 0.5, 80.0, "swing-foot position and slope output frequency", "rad/s")
-    omega_yaw: float = spec(6.982, 0.5, 50.0, "swing-foot yaw output frequency", "rad/s")
-    weight_com: float = spec(2.563, 0.0, 10.0, "QP tracking weight of the COM horizontal output")
-    weight_pelvis: float = spec(5.0, 0.0, 10.0, "QP tracking weight of the pelvis orientation outputs")
+    step_width_max: float = spec(0.645, 0.1, 1.0, "maximum |step width| of the swing target", "m")
+    omega_pelvis: float = spec(7.386, 0.5, 50.0, "pelvis orientation output frequency", "rad/s")
+    omega_height: float = spec(6.0, 0.5, 50.0, "COM height output frequency", "rad/s")
+    omega_swing: float = spec(30.0, 0.5, 80.0, "swing-foot position and slope output frequency", "rad/s")
+    omega_yaw: float = spec(7.0, 0.5, 50.0, "swing-foot yaw output frequency", "rad/s")
+    weight_pelvis: float = spec(6.579, 0.0, 10.0, "QP tracking weight of the pelvis orientation outputs")
+    shin_damping: float = spec(0.1, 0.0, 100.0, "viscous damping of the simulated shin leaf springs "
+                               "(Agility's Cassie model: 0.1)", "N m s/rad")
+    heel_damping: float = spec(0.0, 0.0, 100.0, "viscous damping of the simulated heel leaf springs "
+                               "(Agility's Cassie model: none)", "N m s/rad")
     qp_max_iter: int = spec(150, 25, 5000, "ADMM iteration budget of the CLF-QP per control tick "
                             "(static: one compile per value, equal across a batch)")
     qp_eps: float = spec(1e-4, 1e-8, 1e-1, "ADMM absolute and relative tolerance of the CLF-QP (static)")

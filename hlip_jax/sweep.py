@@ -67,6 +67,7 @@ from pathlib import Path
 from typing import Any
 
 from hlip_jax import config as C
+from hlip_jax.plants.cassie import gaits
 
 __all__ = [
     "SweepError", "Axis", "Sweep", "load_sweep", "parse_sweep", "config_to_dict",
@@ -528,6 +529,14 @@ def _deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
+def _with_gait(raw: dict, where: str) -> dict:
+    """``raw`` with its Cassie gait preset's fields filled in (:func:`gaits.fill`)."""
+    try:
+        return gaits.fill(raw)
+    except gaits.UnknownGait as err:
+        raise SweepError(f"{where}: {err}") from None
+
+
 def _derive_seed(seed: int, name: str) -> int:
     return zlib.crc32(f"{seed}:{name}".encode()) & 0x7FFFFFFF
 
@@ -620,7 +629,8 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
         if not isinstance(over, dict):
             raise SweepError(f"{loc}.overrides: expected a table, got {_tname(over)}")
         merged = _deep_merge(base, over)
-        _build(C.ScenarioConfig, merged, f"{loc}.overrides", exclude=BASE_EXCLUDE)
+        _build(C.ScenarioConfig, _with_gait(merged, f"{loc}.overrides"), f"{loc}.overrides",
+               exclude=BASE_EXCLUDE)
         paths.append((pname, shape, params, merged))
 
     axes = _parse_axes(doc.get("grid"))
@@ -669,7 +679,7 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
                     labels.append(f"{f}={_value_label(v)}")
             sname = pname + ("/" + ",".join(labels) if labels else "")
             where = f"scenario {sname!r}"
-            cfg = _build(C.ScenarioConfig, raw, where, exclude=BASE_EXCLUDE)
+            cfg = _build(C.ScenarioConfig, _with_gait(raw, where), where, exclude=BASE_EXCLUDE)
             cfg = dataclasses.replace(cfg, name=sname, seed=_derive_seed(cfg.seed, sname),
                                       path=C.PathConfig(shape=shape, params=pparams), swept=swept)
             _cross_checks(cfg, where)

@@ -59,13 +59,14 @@ def control(cassie: model.Cassie, d: mjx.Data, des: outputs.Desired, contact, ta
     return res, meas, terms
 
 
-def physics(cassie: model.Cassie, d: mjx.Data, ctrl, force) -> mjx.Data:
+def physics(cassie: model.Cassie, d: mjx.Data, ctrl, force, mx=None) -> mjx.Data:
     """``SUBSTEPS`` MJX steps with motor torques ``ctrl`` (nu,) and a world force ``force``
-    (3,) [N] on the pelvis COM (``xfrc_applied``)."""
+    (3,) [N] on the pelvis COM (``xfrc_applied``); ``mx`` replaces ``cassie.mjx_model``."""
+    mx = cassie.mjx_model if mx is None else mx
     xfrc = jnp.zeros_like(d.xfrc_applied).at[cassie.index.pelvis_body, :3].set(force)
     d = d.replace(ctrl=ctrl, xfrc_applied=xfrc)
     for _ in range(SUBSTEPS):
-        d = mjx.step(cassie.mjx_model, d)
+        d = mjx.step(mx, d)
     return d
 
 

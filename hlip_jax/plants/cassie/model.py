@@ -575,6 +575,7 @@ class RobotTerms(NamedTuple):
     foot_yaw: jax.Array     # (2,) [rad]
     foot_Jw: jax.Array      # (2, 3, nv) foot angular-velocity Jacobians (world frame)
     foot_Jw_dqd: jax.Array  # (2, 3) [rad/s²]
+    ankle: jax.Array        # (2, 3) foot-joint (ankle pivot) positions [m]: the foot body origins
 
 
 class FootContact(NamedTuple):
@@ -615,4 +616,5 @@ def robot_terms(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None) -> 
         foot_R=foot_rotations(cassie, d), foot_yaw=foot_yaw(cassie, d),
         foot_Jw=angular_jacobians(cassie, d, feet),
         foot_Jw_dqd=angular_jdot_qdot(cassie, d, feet),
+        ankle=d.xpos[jnp.array(feet)],
     )
