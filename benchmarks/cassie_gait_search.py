@@ -36,8 +36,8 @@ RANGES = {
     "gain.q_v": (0.1, 2.0, True), "gain.r": (0.5, 10.0, True),
     "cassie.clearance": (0.05, 0.15, False), "cassie.strike": (0.0, 0.02, False),
     "cassie.reach": (0.7, 1.0, False), "cassie.early_contact": (0.5, 0.9, False),
-    "cassie.omega_pelvis": (3.0, 15.0, True), "cassie.omega_height": (3.0, 15.0, True),
-    "cassie.omega_swing": (10.0, 40.0, True), "cassie.omega_yaw": (3.0, 15.0, True),
+    "cassie.omega_pelvis": (2.0, 15.0, True), "cassie.omega_height": (1.5, 15.0, True),
+    "cassie.omega_swing": (4.0, 40.0, True), "cassie.omega_yaw": (3.0, 15.0, True),
     "cassie.weight_pelvis": (1.0, 8.0, True),
 }
 

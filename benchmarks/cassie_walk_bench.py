@@ -26,14 +26,14 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", choices=("cpu", "gpu"), default="cpu")
     ap.add_argument("--steps", type=int, default=8, help="walking steps per robot (≥ 2)")
-    ap.add_argument("--t-ssp", type=float, help="default: plant.WALK_DEFAULTS")
-    ap.add_argument("--t-dsp", type=float, help="default: plant.WALK_DEFAULTS")
-    ap.add_argument("--z0", type=float, help="default: plant.WALK_DEFAULTS")
-    ap.add_argument("--width", type=float, help="nominal step width [m]; default: plant.WALK_DEFAULTS")
+    ap.add_argument("--t-ssp", type=float, help="default: orbits.WALK_DEFAULTS")
+    ap.add_argument("--t-dsp", type=float, help="default: orbits.WALK_DEFAULTS")
+    ap.add_argument("--z0", type=float, help="default: orbits.WALK_DEFAULTS")
+    ap.add_argument("--width", type=float, help="nominal step width [m]; default: orbits.WALK_DEFAULTS")
     ap.add_argument("--gain", choices=("lqr", "deadbeat"), default="lqr",
-                    help="3-state gain on [c, p, v]: the LQR of plant.WALK_DEFAULTS, or deadbeat")
+                    help="3-state gain on [c, p, v]: the LQR of orbits.WALK_DEFAULTS, or deadbeat")
     ap.add_argument("--tasks", default="all",
-                    help="comma-separated subset of plant.WALK_TASKS (default all)")
+                    help="comma-separated subset of orbits.WALK_TASKS (default all)")
     ap.add_argument("--out", default="cassie_walk_bench.json")
     ap.add_argument("--figures", metavar="DIR",
                     help="also plot each case's COM and footprints, foot heights and the "
@@ -53,16 +53,16 @@ def main(argv=None):
     from hlip_jax import hlip
     from hlip_jax.plants.cassie import plant
 
-    dflt = plant.WALK_DEFAULTS
+    dflt = orbits.WALK_DEFAULTS
     pick = lambda v, k: dflt[k] if v is None else v                     # noqa: E731
     z0, ts, td = pick(args.z0, "z0"), pick(args.t_ssp, "t_ssp"), pick(args.t_dsp, "t_dsp")
     width = pick(args.width, "width")
     if args.gain == "lqr":
-        k = np.asarray(plant.lqr_step_gain(z0, ts, td, dflt["q_c"], dflt["q_v"], dflt["r"]))
+        k = np.asarray(orbits.lqr_step_gain(z0, ts, td, dflt["q_c"], dflt["q_v"], dflt["r"]))
     else:
         k = np.asarray(hlip.deadbeat_gain(z0, ts, td, with_position=True))
     gain = np.tile(k, (2, 1))
-    CASES = plant.WALK_TASKS
+    CASES = orbits.WALK_TASKS
     cases = [c for c in CASES if args.tasks == "all" or c[0] in args.tasks.split(",")]
     if not cases:
         ap.error(f"--tasks: none of {args.tasks!r} is one of {[c[0] for c in CASES]}")
@@ -72,11 +72,11 @@ def main(argv=None):
     step_fn = jax.jit(jax.vmap(plant.step_with_log))
     # compile (and warm up) on a 1-step run, then time the real one
     t0 = time.time()
-    plant.walk_orbits(vf, vl, yr, 1, z0=z0, t_ssp=ts, t_dsp=td, width=width, gain=gain,
+    orbits.walk_orbits(vf, vl, yr, 1, z0=z0, t_ssp=ts, t_dsp=td, width=width, gain=gain,
                       batch_step=step_fn)
     t_compile = time.time() - t0
     t0 = time.time()
-    log, ticks = plant.walk_orbits(vf, vl, yr, args.steps, z0=z0, t_ssp=ts, t_dsp=td,
+    log, ticks = orbits.walk_orbits(vf, vl, yr, args.steps, z0=z0, t_ssp=ts, t_dsp=td,
                                    width=width, gain=gain, batch_step=step_fn,
                                    return_ticks=bool(args.figures))
     t_run = time.time() - t0
@@ -91,7 +91,7 @@ def main(argv=None):
         if n_ok >= 2:
             # average over the last 10 s walked (all but the start-up step if shorter)
             lo = max(1, n_ok - int(round(10.0 / T)))
-            fwd, side, yaw_rate = plant.walk_speeds(log, i, lo, n_ok, T)
+            fwd, side, yaw_rate = orbits.walk_speeds(log, i, lo, n_ok, T)
             d = log.x_robot[i, n_ok, :, 0] - log.x_robot[i, lo, :, 0]
             w = log.w[i, :n_ok - 1]
             e = log.e[i, :n_ok + 1]

@@ -24,9 +24,9 @@ HEADER = ("| batch | devices | steps | compile + first [s] | run [s] | robot-s /
 
 def configs(n: int, duration: float, qp_max_iter: int | None = None):
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
-    of docs/cassie_gait.md (H-LIP timing and 3-state LQR stepping gain: plant.WALK_DEFAULTS)."""
+    of docs/cassie_gait.md (H-LIP timing and 3-state LQR stepping gain: orbits.WALK_DEFAULTS)."""
     from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
-    from hlip_jax.plants.cassie.plant import WALK_DEFAULTS as W
+    from hlip_jax.plants.cassie.orbits import WALK_DEFAULTS as W
     cassie = CassieConfig() if qp_max_iter is None else CassieConfig(qp_max_iter=qp_max_iter)
     return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
                            hlip=HLIPConfig(z0=W["z0"], t_ssp=W["t_ssp"], t_dsp=W["t_dsp"]),

@@ -12,6 +12,8 @@ Timeline of step k (t_k = k T, T = T_SSP + T_DSP of the planner's H-LIP):
 
 So e_k = x_R,k − x_H,k obeys e_{k+1} = (A + BK) e_k + w_k with w_k = x_R,k+1 − A x_R,k − B u_R,k
 (the robot's S2S residual against the H-LIP).  Before the loop the MPC plans u_H,0 from x_H,0.
+The log's ``t`` is the planner's t_k; ``t_plant`` is the plant's own clock at SSP⁻_k (a Cassie
+step ends at its detected touchdown, so its steps need not last T).
 
 A scenario whose QP fails keeps walking on its previous plan (shifted) and counts the failure;
 a robot that falls is frozen from that step on and marked; neither touches other scenarios.
@@ -66,6 +68,7 @@ class Static(NamedTuple):
 class Log(NamedTuple):
     """Per-step record; see the module doc of the fields' meaning. Leading axes (S, K)."""
     t: np.ndarray
+    t_plant: np.ndarray
     stance: np.ndarray
     x_hlip: np.ndarray
     x_robot: np.ndarray
@@ -324,6 +327,7 @@ def simulate_one(scn: Scenario, static: Static):
         pstate: object
         alive: jax.Array
         qp_ok: jax.Array
+        t_plant: jax.Array
 
     def body(carry: Carry, k):
         t_k = k.astype(dt) * T
@@ -349,7 +353,7 @@ def simulate_one(scn: Scenario, static: Static):
         gap = jnp.linalg.norm(carry.x_r[:, 0][None, :] - obs[:, :2], axis=-1) - obs[:, 3]
         clearance = jnp.min(jnp.where(scn.mpc.obstacle_active, gap, jnp.inf), initial=jnp.inf)
         w = res.x_robot - (carry.x_r @ A.T) - carry.u_r[:, None] * B
-        out = dict(t=t_k, stance=stance_k, x_hlip=carry.x_h, x_robot=carry.x_r,
+        out = dict(t=t_k, t_plant=carry.t_plant, stance=stance_k, x_hlip=carry.x_h, x_robot=carry.x_r,
                    u_hlip=carry.u_h, u_robot=carry.u_r, w=w, ref_pos=ref.position,
                    ref_vel=ref.velocity, ref_heading=ref.heading, qp_status=new_plan.status,
                    qp_iter=new_plan.iterations, obstacle_slack=new_plan.slack,
@@ -365,11 +369,12 @@ def simulate_one(scn: Scenario, static: Static):
                     x_r=sel(res.x_robot, carry.x_r), u_r=sel(res.u_robot, carry.u_r),
                     plan=sel(new_plan, carry.plan), pstate=sel(pnext, carry.pstate),
                     alive=carry.alive & ~(active & res.failed),
-                    qp_ok=carry.qp_ok & (ok | ~active))
+                    qp_ok=carry.qp_ok & (ok | ~active),
+                    t_plant=sel(carry.t_plant + jnp.asarray(res.duration, dt), carry.t_plant))
         return nxt, out
 
     carry0 = Carry(x_h=scn.x0, u_h=u_h0, x_r=scn.x0, u_r=u_r0, plan=plan0, pstate=pstate,
-                   alive=jnp.bool_(True), qp_ok=ok0)
+                   alive=jnp.bool_(True), qp_ok=ok0, t_plant=jnp.zeros((), dt))
     final, out = jax.lax.scan(body, carry0, jnp.arange(static.n_steps))
     failed_steps = out.pop("failed_now")
     nonfinite = out.pop("nonfinite")

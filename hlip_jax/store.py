@@ -90,11 +90,11 @@ SUMMARY = "summary.csv"
 CHUNK_DIR = "chunks"
 STATUS_NAMES = {0: "ok", 1: "fell", 2: "nonfinite", 3: "qp_failed"}
 
-LOG_FIELDS = ("t", "stance", "x_hlip", "x_robot", "e", "w", "u_hlip", "u_robot", "ref_pos",
+LOG_FIELDS = ("t", "t_plant", "stance", "x_hlip", "x_robot", "e", "w", "u_hlip", "u_robot", "ref_pos",
               "ref_vel", "ref_heading", "qp_status", "qp_iter", "obstacle_slack", "clearance",
               "valid", "status", "fail_step", "A", "B", "K_gain")
 # fields with a step axis (axis 1), padded when chunks of different K are concatenated
-STEP_FIELDS = ("t", "stance", "x_hlip", "x_robot", "e", "w", "u_hlip", "u_robot", "ref_pos",
+STEP_FIELDS = ("t", "t_plant", "stance", "x_hlip", "x_robot", "e", "w", "u_hlip", "u_robot", "ref_pos",
                "ref_vel", "ref_heading", "qp_status", "qp_iter", "obstacle_slack", "clearance",
                "valid")
 

@@ -44,6 +44,7 @@ with_position = false
 
 class FakeLog(NamedTuple):
     t: np.ndarray
+    t_plant: np.ndarray
     stance: np.ndarray
     x_hlip: np.ndarray
     x_robot: np.ndarray
@@ -80,7 +81,7 @@ def fake_simulate(configs, chunk=None, calls=None):
     Ks = [math.ceil(c.duration / (c.hlip.t_ssp + c.hlip.t_dsp)) for c in configs]
     K = max(Ks)
     z = lambda *sh, dt=np.float64: np.zeros((S, K) + sh, dt)  # noqa: E731
-    log = {k: z() for k in ("t", "ref_heading", "obstacle_slack", "clearance")}
+    log = {k: z() for k in ("t", "t_plant", "ref_heading", "obstacle_slack", "clearance")}
     log.update(stance=z(dt=np.int32), qp_status=np.ones((S, K), np.int32), qp_iter=z(dt=np.int32),
                x_hlip=z(2, 3), x_robot=z(2, 3), e=z(2, 3), w=z(2, 3), u_hlip=z(2),
                u_robot=z(2), ref_pos=z(2), ref_vel=z(2), valid=z(dt=bool))
@@ -105,6 +106,7 @@ def fake_simulate(configs, chunk=None, calls=None):
             uh = np.array([0.3 * T, 0.0]) + xh @ Kd
             ur = uh + (xr - xh) @ Kd
             log["t"][s, k] = t
+            log["t_plant"][s, k] = t
             log["stance"][s, k] = k % 2
             log["x_hlip"][s, k], log["x_robot"][s, k] = xh, xr
             log["e"][s, k] = xr - xh

@@ -49,6 +49,7 @@ class StepResult(NamedTuple):
     x_robot: jax.Array      # (2, 3) [c, p, v] per plane (p relative to the stance foot of the SSP)
     u_robot: jax.Array      # (2,) step placed at SSP⁻_{k+1} [m]
     failed: jax.Array       # bool: the robot fell or its state is not finite
+    duration: jax.Array     # plant time the step took, SSP⁻_k → SSP⁻_{k+1} [s]
 
 
 def push_table(pushes, n_push: int):

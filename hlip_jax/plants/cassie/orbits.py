@@ -12,7 +12,7 @@ import numpy as np
 
 from hlip_jax import hlip
 from hlip_jax.plants.base import StepCommand
-from hlip_jax.plants.cassie import model, outputs, plant, tick
+from hlip_jax.plants.cassie import gaits, model, plant, tick
 
 #: the walking tasks of the orbit-walking acceptance: name, forward [m/s], sideways [m/s],
 #: yaw rate [deg/s] (in the heading frame)
@@ -25,11 +25,12 @@ WALK_TASKS = (
     ("turn_30dps", 0.0, 0.0, 30.0),
 )
 
-#: the default orbit walk (gait search set #85, docs/cassie_gait.md): H-LIP T_SSP, T_DSP [s],
-#: COM height z0 [m], nominal step width [m], and the weights of the 3-state LQR stepping gain
-#: Q = diag(q_c, 1, q_v), R = r (see :func:`lqr_step_gain`)
-WALK_DEFAULTS = dict(t_ssp=0.2726, t_dsp=0.02, z0=0.8413, width=0.15, q_c=0.07065, q_v=0.247,
-                     r=2.673)
+#: the default orbit walk: the "paper" gait preset's H-LIP T_SSP, T_DSP [s], COM height z0 [m]
+#: and 3-state LQR stepping gain Q = diag(q_c, 1, q_v), R = r (see :func:`lqr_step_gain`), with
+#: a nominal step width [m]
+_P = gaits.preset(gaits.DEFAULT)
+WALK_DEFAULTS = dict(t_ssp=_P["hlip.t_ssp"], t_dsp=_P["hlip.t_dsp"], z0=_P["hlip.z0"], width=0.2,
+                     q_c=_P["gain.q_c"], q_v=_P["gain.q_v"], r=_P["gain.r"])
 
 
 def lqr_step_gain(z0, t_ssp, t_dsp, q_c, q_v, r):

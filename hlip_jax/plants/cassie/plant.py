@@ -201,7 +201,8 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
     new = State(d=s.d, warm=s.warm, time=state.time + s.t_step,
                 yaw=outputs.wrap(cmd.heading), land_xy=st_xy + s.u_last + s.sw_offset + du_err,
                 key=key)
-    return new, StepResult(x_robot=x_r, u_robot=sw_xy - st_xy, failed=failed), log
+    return new, StepResult(x_robot=x_r, u_robot=sw_xy - st_xy, failed=failed,
+                           duration=s.t_step), log
 
 
 def step(params: Params, state: State, cmd: StepCommand, settings=clfqp.DEFAULT_SETTINGS):

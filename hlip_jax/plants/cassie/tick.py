@@ -185,7 +185,7 @@ def contacts(ctx: Context, s: TickState, terms) -> Contacts:
     count = jnp.where(sw_touch, s.touch + 1, 0)
     late_enough = s.t_phase >= ctx.gait.early_contact * ctx.cmd.t_ssp
     touchdown = (s.phase == SSP) & (count >= TOUCHDOWN_TICKS) & late_enough
-    return Contacts(sites=on.astype(s.d.qpos.dtype), foot=foot, touching=touching,
+    return Contacts(sites=on.astype(terms.site_pos.dtype), foot=foot, touching=touching,
                     count=jnp.where(s.phase == SSP, count, 0), touchdown=touchdown)
 
 
