@@ -118,6 +118,13 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the two swept dimensions of the grid heat maps (a grid field such as "
                     "disturbance.pushes.0.time, or 'path'); default: the first two axes")
 
+    tk = sub.add_parser("ticks", help="per-tick diagnostics of one Cassie scenario of a results "
+                        "directory", description="Re-simulate one scenario of DIR alone with the "
+                        "controller's 1 kHz log and write DIR/ticks/INDEX.npz and INDEX.png "
+                        "(output errors, torques, contact forces, CLF-QP status, phase).")
+    tk.add_argument("dir", metavar="DIR")
+    tk.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
+
     sub.add_parser("list", help="list the shipped sweeps", description="List sweeps/*.toml.")
 
     s = sub.add_parser("show", help="expand a sweep and print its grid",
@@ -205,6 +212,28 @@ def cmd_report(args) -> int:
     return EXIT_OK
 
 
+def cmd_ticks(args) -> int:
+    from hlip_jax import store, tick_report
+    d = Path(args.dir)
+    if not d.is_dir():
+        raise UserError(f"{d}: results directory not found")
+    names = [c["name"] for c in store.read_manifest(d)["configs"]]
+    if args.scenario in names:
+        index = names.index(args.scenario)
+    elif args.scenario.isdigit() and int(args.scenario) < len(names):
+        index = int(args.scenario)
+    else:
+        raise UserError(f"SCENARIO: {args.scenario!r} is neither a scenario name of {d} nor an "
+                        f"index; allowed: 0..{len(names) - 1} or a name from summary.csv")
+    try:
+        npz, png = tick_report.replay(d, index)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    print(f"ticks: {npz}")
+    print(f"       {png}")
+    return EXIT_OK
+
+
 def cmd_list(args) -> int:
     import tomllib
     files = sorted(shipped_dir().glob("*.toml"))
@@ -253,7 +282,7 @@ def main(argv=None) -> int:
 
     args = build_parser().parse_args(argv)
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
-               "bench": cmd_bench}[args.cmd]
+               "bench": cmd_bench, "ticks": cmd_ticks}[args.cmd]
     try:
         return handler(args)
     except (UserError, SweepError, StoreError, ReportError) as err:

@@ -63,6 +63,7 @@ class Static(NamedTuple):
     settings: qp.Settings
     plant: str
     plant_settings: Optional[qp.Settings] = None   # the Cassie CLF-QP's ADMM settings
+    keep_ticks: bool = False                       # also return the plant's per-tick log
 
 
 class Log(NamedTuple):
@@ -344,7 +345,11 @@ def simulate_one(scn: Scenario, static: Static):
         cmd = StepCommand(t=t_k, stance=stance_k, x_hlip=carry.x_h, u_hlip=carry.u_h,
                           x_hlip_next=x_h_next, u_hlip_next=u_h_next, gain=scn.gain,
                           heading=heading_next, t_ssp=scn.t_ssp, t_dsp=scn.t_dsp, z0=scn.z0)
-        if static.plant_settings is None:
+        ticks = None
+        if static.keep_ticks:
+            pnext, res, ticks = plant.step_with_log(scn.plant, carry.pstate, cmd,
+                                                    static.plant_settings)
+        elif static.plant_settings is None:
             pnext, res = plant.step(scn.plant, carry.pstate, cmd)
         else:
             pnext, res = plant.step(scn.plant, carry.pstate, cmd, static.plant_settings)
@@ -360,6 +365,8 @@ def simulate_one(scn: Scenario, static: Static):
                    clearance=clearance, valid=active, failed_now=active & res.failed,
                    nonfinite=active & ~jnp.all(jnp.isfinite(res.x_robot)),
                    qp_failed=active & ~ok)
+        if ticks is not None:
+            out["ticks"] = ticks
         keep = active & ~res.failed
 
         def sel(new, old):
@@ -422,6 +429,25 @@ def _to_host(a):
         from jax.experimental import multihost_utils
         return np.asarray(multihost_utils.process_allgather(a, tiled=True))
     return np.asarray(a)
+
+
+def simulate_ticks(configs: Sequence[ScenarioConfig], index: int, *, n_samples: int = 2048,
+                   dtype=None):
+    """Re-simulate scenario ``index`` of ``configs`` (a Cassie sweep) alone, with the plant's
+    per-tick log.  The array sizes are the whole sweep's (:func:`shapes_of`), so the run is the
+    one the sweep made up to floating-point differences of a batch of one.  Returns (the step
+    log as a dict of arrays (K, ...), the tick log (:class:`hlip_jax.plants.cassie.tick.TickLog`
+    of arrays (K, ticks per step, ...)))."""
+    configs = list(configs)
+    cfg = configs[index]
+    if cfg.plant != "cassie":
+        raise ValueError(f"plant: per-tick logs exist for plant = 'cassie' only, scenario "
+                         f"{index} has {cfg.plant!r}")
+    batch, static = build([cfg], n_samples=n_samples, dtype=dtype, shapes=shapes_of(configs))
+    with jax.default_matmul_precision("highest"):
+        out = run(batch, static._replace(keep_ticks=True))
+    out = jax.tree.map(lambda a: np.asarray(a)[0], out)
+    return out, out.pop("ticks")
 
 
 def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to: int | None = None,

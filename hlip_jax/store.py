@@ -434,7 +434,7 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
     m["rms_pos_err"] = float(np.sqrt(np.mean(d_time ** 2)))
     m["final_pos_err"] = float(d_time[-1])
     if push_time is not None:
-        t = np.asarray(log["t"][s], np.float64)[mask]
+        t = np.asarray(log["t_plant"][s], np.float64)[mask]        # pushes act on the plant clock
         m["push_peak_err"], m["push_recovery_steps"] = push_recovery(
             d_path, t, push_time, failed=int(np.asarray(log["status"][s])) != 0)
     du_all = _placement(log, s)                                       # (K, 2)

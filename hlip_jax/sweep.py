@@ -721,6 +721,14 @@ def config_to_dict(cfg: C.ScenarioConfig) -> dict:
     return json.loads(json.dumps(dataclasses.asdict(cfg)))
 
 
+def config_from_dict(d: dict) -> C.ScenarioConfig:
+    """The inverse of :func:`config_to_dict` (validated like a sweep file's table)."""
+    raw = {k: v for k, v in d.items() if k not in BASE_EXCLUDE}
+    cfg = _build(C.ScenarioConfig, raw, f"scenario {d.get('name')!r}", exclude=BASE_EXCLUDE)
+    path = C.PathConfig(shape=d["path"]["shape"], params=dict(d["path"]["params"]))
+    return dataclasses.replace(cfg, name=d["name"], path=path, swept=dict(d.get("swept", {})))
+
+
 def config_hash(configs, extra: dict | None = None) -> str:
     """SHA-256 of the canonical JSON of the expanded configs (and ``extra``, e.g. the chunk size)."""
     payload = {"configs": [config_to_dict(c) for c in configs], "extra": extra or {}}

@@ -1,0 +1,86 @@
+"""Per-tick diagnostics of one Cassie scenario of a results directory (``hlip-sweep ticks``).
+
+The sweep keeps one record per walking step; explaining a fall needs the 1 kHz tick: output
+errors, torques, contact set and forces, CLF-QP status, phase.  :func:`replay` re-simulates the
+chosen scenario alone from the configs in the directory's manifest (the sweep's own array
+sizes, so the same run up to the floating-point differences of a batch of one; a chaotic fall
+can diverge late) with the plant's tick log (:class:`hlip_jax.plants.cassie.tick.TickLog`),
+and writes ``ticks/<index>.npz`` (the ticks that ran, idle ones after each touchdown dropped,
+with the plant time ``time`` [s] and the step index ``step``) and ``ticks/<index>.png``.
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+import numpy as np
+
+#: output rows of hlip_jax.plants.cassie.outputs grouped for the figure
+GROUPS = {"pelvis orientation [rad]": slice(0, 3), "COM height [m]": slice(3, 4),
+          "foot position [m]": slice(6, 12), "sole slope [m]": slice(12, 14),
+          "foot yaw [rad]": slice(14, 16)}
+
+
+def flatten(ticks: dict, step_log: dict, dt: float) -> dict:
+    """Tick arrays (K, n, ...) → the ticks that ran (phase < done) in time order, with
+    ``time`` (plant clock [s]) and ``step`` (walking step index)."""
+    from hlip_jax.plants.cassie import tick
+    run = (np.asarray(ticks["phase"]) != tick.DONE) & np.asarray(step_log["valid"])[:, None]
+    K, n = run.shape
+    t0 = np.asarray(step_log["t_plant"], np.float64)[:, None] + dt * np.arange(n)[None, :]
+    out = {k: np.asarray(v)[run] for k, v in ticks.items()}
+    out["time"] = t0[run]
+    out["step"] = np.broadcast_to(np.arange(K)[:, None], (K, n))[run]
+    return out
+
+
+def figure(flat: dict, title: str, path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = flat["time"]
+    fig, ax = plt.subplots(5, 1, figsize=(9, 11), sharex=True)
+    ax[0].plot(t, flat["com"][:, 2], label="COM z")
+    ax[0].plot(t, flat["pelvis"][:, 2], label="pelvis z")
+    ax[0].set_ylabel("[m]")
+    ax[0].legend(loc="upper right")
+    for name, rows in GROUPS.items():
+        ax[1].plot(t, np.linalg.norm(flat["y_err"][:, rows], axis=1), label=name)
+    ax[1].set_yscale("symlog", linthresh=1e-3)
+    ax[1].set_ylabel("|output error|")
+    ax[1].legend(loc="upper right", fontsize=7)
+    ax[2].plot(t, flat["tau"], lw=0.7)
+    ax[2].set_ylabel("motor torque [N m]")
+    ax[3].plot(t, flat["grf"][:, :, 2], lw=0.7)
+    ax[3].set_ylabel("normal force per site [N]")
+    ax[4].plot(t, flat["phase"], label="phase (0 DSP, 1 SSP)")
+    ax[4].plot(t, flat["status"], ".", ms=2, label="CLF-QP status")
+    ax[4].plot(t, flat["contact"].sum(axis=1), label="sites in contact")
+    ax[4].legend(loc="upper right", fontsize=7)
+    ax[4].set_xlabel("plant time [s]")
+    ax[0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def replay(out_dir, index: int) -> tuple[pathlib.Path, pathlib.Path]:
+    """Re-simulate scenario ``index`` of the results in ``out_dir`` with its tick log; returns
+    the paths of the written ``.npz`` and ``.png``."""
+    from hlip_jax import rollout, store, sweep
+    from hlip_jax.plants.cassie import control
+
+    man = store.read_manifest(out_dir)
+    configs = [sweep.config_from_dict(d) for d in man["configs"]]
+    if not 0 <= index < len(configs):
+        raise ValueError(f"scenario: index {index} is out of range; allowed: 0..{len(configs) - 1}")
+    step_log, ticks = rollout.simulate_ticks(configs, index)
+    flat = flatten(ticks._asdict(), step_log, control.CONTROL_DT)
+    folder = pathlib.Path(out_dir) / "ticks"
+    folder.mkdir(exist_ok=True)
+    npz, png = folder / f"{index}.npz", folder / f"{index}.png"
+    store.save_npz_atomic(npz, flat)
+    status = rollout.STATUS_NAMES.get(int(step_log["status"]), "?")
+    figure(flat, f"#{index} {configs[index].name} ({status})", png)
+    return npz, png
