@@ -334,7 +334,10 @@ def cassie() -> model.Cassie:
     damping (each scenario sets its own: :class:`Context` ``mx``)."""
     global _MODEL
     if _MODEL is None:
-        _MODEL = model.load()
+        # the first call may come while a closed loop is being traced: build the MJX model's
+        # arrays eagerly, so the cached model holds concrete arrays, not that trace's tracers
+        with jax.ensure_compile_time_eval():
+            _MODEL = model.load()
     return _MODEL
 
 
