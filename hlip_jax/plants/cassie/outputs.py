@@ -161,6 +161,26 @@ def swing_height(t, t_ssp, clearance, strike):
     return clearance * bump - strike * (down + late)
 
 
+def landing_fraction(clearance, strike, iters: int = 40):
+    """Fraction s* of SSP at which :func:`swing_height` comes back to the ground: the root of
+    clearance · 64 s³(1 − s)³ = strike · s²(3 − 2s) on s ∈ [½, 1] (the difference is
+    clearance − strike/2 > 0 at ½ and −strike ≤ 0 at 1, one crossing after the apex), by
+    ``iters`` bisection steps (interval 2⁻⁴¹).  It depends only on strike / clearance; s* = 1
+    when strike = 0.  With strike > 0 the swing foot is expected to touch down at s* T_SSP,
+    before the H-LIP's T_SSP."""
+    h = lambda s: swing_height(s, 1.0, clearance, strike)
+
+    def halve(_, ab):
+        a, b = ab
+        m = 0.5 * (a + b)
+        above = h(m) > 0.0
+        return jnp.where(above, m, a), jnp.where(above, b, m)
+
+    one = jnp.ones_like(jnp.asarray(clearance))
+    a, b = jax.lax.fori_loop(0, iters, halve, (0.5 * one, one))
+    return 0.5 * (a + b)
+
+
 def with_derivatives(f, t):
     """(f(t), f'(t), f''(t)) of a scalar function of time by nested forward-mode AD."""
     df = lambda s: jax.jvp(f, (s,), (jnp.ones_like(s),))[1]
