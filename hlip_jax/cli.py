@@ -25,6 +25,8 @@ import os
 import sys
 from pathlib import Path
 
+from hlip_jax import resources
+
 EXIT_OK, EXIT_INCOMPLETE, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 PROG = "hlip-sweep"
 
@@ -34,8 +36,8 @@ class UserError(Exception):
 
 
 def shipped_dir() -> Path:
-    """The ``sweeps/`` directory shipped next to the package (source checkout / editable)."""
-    return Path(__file__).resolve().parent.parent / "sweeps"
+    """The shipped sweeps (inside an installed wheel, or ``sweeps/`` of a source checkout)."""
+    return resources.data_dir("sweeps")
 
 
 def resolve_sweep(arg: str) -> Path:

@@ -24,6 +24,7 @@ matplotlib runs with the Agg backend; every figure is a PNG next to the report.
 
 from __future__ import annotations
 
+import base64
 import html
 import math
 from pathlib import Path
@@ -355,6 +356,13 @@ def heatmaps(man: dict, rows: list[dict], fig_dir: Path,
 # document assembly
 
 
+def _data_uri(png: Path) -> str:
+    """``png`` as a base64 ``data:image/png`` URI (the file's own path if it is missing)."""
+    if not png.is_file():
+        return html.escape(str(png))
+    return "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")
+
+
 class _Doc:
     """Collects report content and renders it as HTML and Markdown."""
 
@@ -367,13 +375,16 @@ class _Doc:
     def p(self, text):
         self.parts.append(("p", text))
 
-    def table(self, head, rows):
-        self.parts.append(("table", head, rows))
+    def table(self, head, rows, bad=()):
+        """A table; the rows whose indices are in ``bad`` are marked (failed scenarios)."""
+        self.parts.append(("table", head, rows, frozenset(bad)))
 
     def img(self, src, alt):
         self.parts.append(("img", src, alt))
 
-    def html(self, title) -> str:
+    def html(self, title, base: Path) -> str:
+        """One self-contained HTML file: figures (paths relative to ``base``) embedded as
+        base64 data URIs, wide tables scroll inside their box, marked rows in red."""
         out = ["<!DOCTYPE html>", "<html><head><meta charset='utf-8'>",
                f"<title>{html.escape(title)}</title>",
                "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;"
@@ -381,22 +392,24 @@ class _Doc:
                "margin:0.5em 0 1.5em}td,th{border:1px solid #ccc;padding:2px 6px;"
                "text-align:right}th{background:#f0f0f0}td:first-child,th:first-child"
                "{text-align:left}img{max-width:100%;margin:0.3em 0}.bad{color:#b00}"
-               "h2{border-bottom:1px solid #ccc;margin-top:2em}</style></head><body>"]
+               "h2{border-bottom:1px solid #ccc;margin-top:2em}.wide{overflow-x:auto}"
+               "tr.bad td{color:#b00;background:#fff4f4}</style></head><body>"]
         for part in self.parts:
             if part[0] == "h":
                 out.append(f"<h{part[1]}>{html.escape(part[2])}</h{part[1]}>")
             elif part[0] == "p":
                 out.append(f"<p>{html.escape(part[1])}</p>")
             elif part[0] == "img":
-                out.append(f"<div><img src='{html.escape(part[1])}' "
+                out.append(f"<div><img src='{_data_uri(base / part[1])}' "
                            f"alt='{html.escape(part[2])}'></div>")
             else:
-                out.append("<table><tr>" + "".join(f"<th>{html.escape(str(c))}</th>"
-                                                   for c in part[1]) + "</tr>")
-                for r in part[2]:
-                    out.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r)
+                out.append("<div class='wide'><table><tr>"
+                           + "".join(f"<th>{html.escape(str(c))}</th>" for c in part[1]) + "</tr>")
+                for i, r in enumerate(part[2]):
+                    cls = " class='bad'" if i in part[3] else ""
+                    out.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r)
                                + "</tr>")
-                out.append("</table>")
+                out.append("</table></div>")
         out.append("</body></html>")
         return "\n".join(out) + "\n"
 
@@ -578,11 +591,13 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
             "cov_x_outer", "cov_y_outer", "cov_x_heldout", "cov_y_heldout", "e_size_x",
             "e_size_y", "qp_failures", "min_clearance"]
     doc.p(f"All columns in summary.csv ({len(rows)} rows); errors in m.")
-    doc.table(cols, [[_fmt(r.get(c, "")) for c in cols] for r in rows[:MAX_TABLE_ROWS]])
+    shown = rows[:MAX_TABLE_ROWS]
+    doc.table(cols, [[_fmt(r.get(c, "")) for c in cols] for r in shown],
+              bad=[i for i, r in enumerate(shown) if r.get("status") != "ok"])
     if len(rows) > MAX_TABLE_ROWS:
         doc.p(f"… {len(rows) - MAX_TABLE_ROWS} more rows in summary.csv")
 
     html_p, md_p = out / "report.html", out / "report.md"
-    store.write_atomic(html_p, doc.html(title))
+    store.write_atomic(html_p, doc.html(title, out))
     store.write_atomic(md_p, doc.markdown())
     return html_p, md_p

@@ -6,6 +6,7 @@ store, so the closed loop does not matter here) and checks the HTML/Markdown for
 
 from __future__ import annotations
 
+import base64
 import re
 import sys
 from pathlib import Path
@@ -28,20 +29,23 @@ def tiny_report(tmp_path_factory):
 
 
 def test_every_figure_exists_and_is_referenced(tiny_report):
+    """Markdown links figures/*.png; the HTML is one self-contained file: every figure is
+    embedded as a base64 data URI holding exactly that PNG's bytes."""
     out, html, md = tiny_report
+    embedded = {base64.b64decode(src.split(",", 1)[1])
+                for src in re.findall(r"<img src='(data:image/png;base64,[^']+)'", html)}
     for path in ("circle", "line"):
         for kind in report.FIGURE_KINDS:
             f = out / "figures" / f"{path}_{kind}.png"
             assert f.is_file() and f.stat().st_size > 1000, f
-            assert f"figures/{path}_{kind}.png" in html
+            assert f.read_bytes() in embedded, f
             assert f"figures/{path}_{kind}.png" in md
     for name in ("success", "error"):
-        assert (out / "figures" / f"heatmap_{name}.png").is_file()
-        assert f"figures/heatmap_{name}.png" in html
-    # every <img> points at an existing file: the report is self-contained but for figures/
-    for src in re.findall(r"<img src='([^']+)'", html):
-        assert (out / src).is_file(), src
-    assert "<script" not in html and "http" not in html
+        f = out / "figures" / f"heatmap_{name}.png"
+        assert f.is_file() and f.read_bytes() in embedded
+    assert len(re.findall(r"<img src='", html)) == len(re.findall(r"<img src='data:", html))
+    text = re.sub(r"data:image/png;base64,[^']+", "", html)     # base64 may spell anything
+    assert "<script" not in text and "http" not in text
 
 
 def test_tables(tiny_report):
@@ -58,6 +62,8 @@ def test_tables(tiny_report):
     assert "Per-scenario summary" in md
     assert md.count("circle/gain.type=") >= 4
     assert "<table>" in html and "Path: circle" in html and "Path: line" in html
+    # the two failed scenarios' rows of the per-scenario table are marked
+    assert html.count("<tr class='bad'>") == 2
 
 
 def test_heading_frame_steps():

@@ -13,8 +13,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
+from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax.plants.cassie import clfqp, dynamics, model, outputs
 
 SUBSTEPS = 2

@@ -46,9 +46,11 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
-ASSET_DIR = pathlib.Path(__file__).resolve().parents[3] / "assets" / "cassie"
+from hlip_jax.plants.cassie.mjx_import import mjx
+from hlip_jax import resources
+
+ASSET_DIR = resources.data_dir("assets", "cassie")
 SCENE_XML = ASSET_DIR / "scene.xml"
 ROBOT_XML = ASSET_DIR / "cassie.xml"
 

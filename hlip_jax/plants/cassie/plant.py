@@ -26,8 +26,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
+from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax.plants.base import StepCommand, StepResult, push_table
 from hlip_jax.plants.cassie import clfqp, control, model, outputs, tick
 

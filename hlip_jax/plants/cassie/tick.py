@@ -46,8 +46,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
+from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax import hlip
 from hlip_jax.plants.base import StepCommand
 from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs
