@@ -559,10 +559,21 @@ def parse_sweep(text: str, *, source: str = "<string>", plant: str | None = None
     Raises:
       SweepError: with a one-line message naming the field, the value and what is allowed.
     """
+    doc = _loads(text, source)
+    if "extends" in doc:
+        raise SweepError(f"{source}: extends: only a sweep file can extend another (the name "
+                         "is resolved next to the file); use hlip-sweep with the file's path")
+    return _expand_doc(doc, text, source, plant, duration, limit, default_name)
+
+
+def _loads(text: str, source: str) -> dict:
     try:
-        doc = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise SweepError(f"{source}: not valid TOML: {err}") from None
+
+
+def _expand_doc(doc, text, source, plant, duration, limit, default_name) -> Sweep:
     try:
         return _expand(doc, text, source, plant, duration, limit, default_name)
     except SweepError as err:
@@ -700,16 +711,54 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
                  total=total)
 
 
-def load_sweep(path, **overrides) -> Sweep:
-    """Read and expand a sweep file (see :func:`parse_sweep` for the keyword overrides)."""
+MAX_EXTENDS = 8   # longest chain of sweep files extending one another
+
+
+def load_sweep(path, *, plant: str | None = None, duration: float | None = None,
+               limit: int | None = None) -> Sweep:
+    """Read and expand a sweep file (see :func:`parse_sweep` for the keyword overrides).
+
+    A file may start from another with ``extends = "paper.toml"`` (a path relative to the file;
+    ``.toml`` may be left out): the parent's ``[base]`` is deep-merged under the file's own, and
+    ``paths``, ``grid`` and ``description`` are the file's where it sets them, else the
+    parent's; the name is always the file's own (or its stem).  Chains of up to
+    :data:`MAX_EXTENDS` files, no cycles.  The manifest keeps every file's text."""
     p = Path(path)
+    doc, text = _resolve_extends(p, str(path), ())
+    return _expand_doc(doc, text, str(path), plant, duration, limit, p.stem)
+
+
+def _read_sweep_file(p: Path, source: str) -> str:
     if not p.is_file():
-        raise SweepError(f"{path}: sweep file not found" + (" (it is a directory)" if p.is_dir() else ""))
+        raise SweepError(f"{source}: sweep file not found" + (" (it is a directory)" if p.is_dir() else ""))
     try:
-        text = p.read_text(encoding="utf-8")
+        return p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as err:
-        raise SweepError(f"{path}: cannot read the sweep file: {err}") from None
-    return parse_sweep(text, source=str(path), default_name=p.stem, **overrides)
+        raise SweepError(f"{source}: cannot read the sweep file: {err}") from None
+
+
+def _resolve_extends(p: Path, source: str, chain: tuple) -> tuple[dict, str]:
+    """(document, text) of sweep file ``p`` with its ``extends`` chain merged in."""
+    text = _read_sweep_file(p, source)
+    doc = _loads(text, source)
+    parent = doc.pop("extends", None)
+    if parent is None:
+        return doc, text
+    if not isinstance(parent, str) or not parent.strip():
+        raise SweepError(f"{source}: extends: expected the path of another sweep file, got "
+                         f"{_tname(parent)} {_fmt(parent)}")
+    q = p.parent / (parent if parent.endswith(".toml") else parent + ".toml")
+    key = q.resolve()
+    if key in chain or key == p.resolve():
+        raise SweepError(f"{source}: extends: {parent!r} extends this file again (a cycle)")
+    if len(chain) + 1 >= MAX_EXTENDS:
+        raise SweepError(f"{source}: extends: more than {MAX_EXTENDS} files in the chain")
+    base_doc, base_text = _resolve_extends(q, f"{source}: extends {parent!r}", chain + (p.resolve(),))
+    merged = {k: v for k, v in base_doc.items() if k != "name"}
+    for k, v in doc.items():
+        both_tables = isinstance(v, dict) and isinstance(merged.get(k), dict)
+        merged[k] = _deep_merge(merged[k], v) if k == "base" and both_tables else v
+    return merged, f"{text}\n# ---- extends {parent} ----\n{base_text}"
 
 
 # --------------------------------------------------------------------------------------------

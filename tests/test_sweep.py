@@ -187,3 +187,80 @@ def test_config_hash_is_stable_and_sensitive():
 def test_missing_file():
     with pytest.raises(sweep.SweepError, match="not found"):
         sweep.load_sweep("/nonexistent/x.toml")
+
+
+# ------------------------------------------------------------------------------- extends
+
+PARENT = """
+name = "parent"
+description = "the parent"
+[base]
+duration = 12.0
+seed = 3
+[base.hlip]
+z0 = 0.8
+t_ssp = 0.3
+[base.path]
+peak_speed = 0.5
+[[paths]]
+shape = "circle"
+radius = 2.0
+"""
+
+
+def test_extends_merges_base_and_keeps_the_childs_name(tmp_path):
+    (tmp_path / "parent.toml").write_text(PARENT)
+    (tmp_path / "child.toml").write_text('extends = "parent"\n[base.hlip]\nz0 = 0.9\n'
+                                         '[grid.product]\n"mpc.alpha" = [0.01, 0.1]\n')
+    sw = sweep.load_sweep(tmp_path / "child.toml")
+    par = sweep.load_sweep(tmp_path / "parent.toml")
+    assert sw.name == "child" and sw.description == "the parent"
+    assert len(sw.scenarios) == 2 and len(par.scenarios) == 1
+    for c in sw.scenarios:        # deep merge: z0 from the child, t_ssp and the rest inherited
+        assert c.hlip.z0 == 0.9 and c.hlip.t_ssp == 0.3 and c.duration == 12.0
+        assert c.path == par.scenarios[0].path
+    assert [c.mpc.alpha for c in sw.scenarios] == [0.01, 0.1]
+    assert "# ---- extends parent ----" in sw.text and 'name = "parent"' in sw.text
+
+
+def test_extends_paths_replace_the_parents(tmp_path):
+    (tmp_path / "parent.toml").write_text(PARENT)
+    (tmp_path / "c.toml").write_text('extends = "parent.toml"\n[[paths]]\nshape = "line"\nlength = 3.0\n')
+    sw = sweep.load_sweep(tmp_path / "c.toml")
+    assert [c.path.shape for c in sw.scenarios] == ["line"]
+    assert sw.scenarios[0].duration == 12.0
+
+
+@pytest.mark.parametrize("files, start, expect", [
+    ({"a.toml": 'extends = "b"', "b.toml": 'extends = "a"'}, "a.toml", "a cycle"),
+    ({"a.toml": 'extends = "a"'}, "a.toml", "a cycle"),
+    ({"a.toml": 'extends = "missing"'}, "a.toml", "sweep file not found"),
+    ({"a.toml": "extends = 3"}, "a.toml", "extends: expected the path of another sweep file"),
+    ({"a.toml": 'extends = "b"', "b.toml": "[base\n"}, "a.toml", "not valid TOML"),
+    ({f"s{i}.toml": f'extends = "s{i + 1}"' for i in range(12)}, "s0.toml", "more than 8 files"),
+])
+def test_extends_errors(tmp_path, files, start, expect):
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    with pytest.raises(sweep.SweepError, match=expect):
+        sweep.load_sweep(tmp_path / start)
+
+
+def test_extends_needs_a_file():
+    with pytest.raises(sweep.SweepError, match="only a sweep file can extend"):
+        sweep.parse_sweep('extends = "paper.toml"')
+
+
+def test_shipped_replicates_extend_the_paper():
+    """paper_replicates.toml states only what differs from paper.toml: every scenario is the
+    paper's scenario of the same path with the seed, duration and step noise changed."""
+    paper = {c.name: c for c in sweep.load_sweep(ROOT / "sweeps" / "paper.toml").scenarios}
+    reps = sweep.load_sweep(ROOT / "sweeps" / "paper_replicates.toml").scenarios
+    assert len(reps) == 8 * len(paper)
+    for c in reps:
+        ref = paper[c.swept["path"]]
+        # the base's 20 s; a path's own override (the pushed line's 30 s) still wins
+        assert c.duration == (30.0 if c.swept["path"] == "line-push" else 20.0)
+        assert c.disturbance.noise_v == 0.02 and c.disturbance.pushes == ref.disturbance.pushes
+        assert c.path == ref.path and c.hlip == ref.hlip and c.mpc == ref.mpc and c.gain == ref.gain
+        assert c.cassie == ref.cassie and c.obstacles == ref.obstacles
