@@ -42,7 +42,7 @@ def main(argv=None):
     if args.x64:
         jax.config.update("jax_enable_x64", True)
     import numpy as np
-    from hlip_jax import rollout
+    from hlip_jax import rollout, steplog
     from hlip_jax.bench import timed_run
 
     dev = jax.devices()[0]
@@ -57,7 +57,7 @@ def main(argv=None):
         t_build = time.perf_counter() - t0
         t_first, t_run, out = timed_run(batch, static)
         steps = static.n_steps
-        ok = float(np.mean(np.asarray(out["status"]) == rollout.STATUS_OK))
+        ok = float(np.mean(np.asarray(out["status"]) == steplog.STATUS_OK))
         print(f"| {b} | {steps} | {t_build:.1f} | {t_first:.1f} | {t_run:.2f} | "
               f"{b * steps / t_run:,.0f} | {ok:.3f} |", flush=True)
 

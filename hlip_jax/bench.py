@@ -86,7 +86,7 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
     import jax
     import numpy as np
 
-    from hlip_jax import rollout
+    from hlip_jax import rollout, steplog
     from hlip_jax.plants.cassie import control, model
     from hlip_jax.plants.cassie import plant as cassie_plant
 
@@ -130,7 +130,7 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
             row = dict(batch=B, devices=n_dev, steps=static.n_steps, compile_first_s=t_first,
                        run_s=t_run, robot_s_per_s=sim_s / t_run, physics_steps_per_s=rate,
                        physics_only_steps_per_s=prate, ratio=rate / prate,
-                       walking=float(np.mean(status == rollout.STATUS_OK)),
+                       walking=float(np.mean(status == steplog.STATUS_OK)),
                        peak_mib_per_robot=None if peak is None else peak / B / 2**20)
             rows.append(row)
             mem = "–" if peak is None else f"{row['peak_mib_per_robot']:.2f}"

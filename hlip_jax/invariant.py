@@ -54,6 +54,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from hlip_jax import steplog
+
 # ---------------------------------------------------------------------------------------------
 # set types
 # ---------------------------------------------------------------------------------------------
@@ -908,11 +910,7 @@ def placement_errors(u_exec, u_hlip, e, K):
 def to_heading(v, heading):
     """Per-plane vectors v (..., 2, n) [world x, y] → (sagittal, lateral) of the frame turned by
     ``heading`` θ (...) [rad]: v'_0 = cos θ v_x + sin θ v_y, v'_1 = −sin θ v_x + cos θ v_y."""
-    v = _f64(v)
-    th = _f64(heading)
-    c, s = np.cos(th)[..., None], np.sin(th)[..., None]
-    return np.stack([c * v[..., 0, :] + s * v[..., 1, :],
-                     -s * v[..., 0, :] + c * v[..., 1, :]], axis=-2)
+    return steplog.to_heading_frame(_f64(v), _f64(heading))
 
 
 def heading_frame(e, d, heading, A_cl):

@@ -32,7 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
-from hlip_jax import store
+from hlip_jax import steplog, store
 
 __all__ = ["ReportError", "write_report", "FIGURE_KINDS"]
 
@@ -79,7 +79,7 @@ def _isnan(v) -> bool:
 
 
 def _mask(log, s=0):
-    return np.cumprod(np.asarray(log["valid"][s], bool)).astype(bool)
+    return steplog.alive(log["valid"][s])
 
 
 def fig_xy(log, cfg: dict, path: Path, title: str) -> None:
@@ -134,8 +134,7 @@ def fig_time(log, path: Path, title: str) -> None:
 
 def heading_frame_steps(u, heading):
     """Step sizes (…, 2) in the world frame → (sagittal, lateral) in the heading frame θ."""
-    c, s = np.cos(heading), np.sin(heading)
-    return np.stack([c * u[..., 0] + s * u[..., 1], -s * u[..., 0] + c * u[..., 1]], axis=-1)
+    return steplog.to_heading_frame(u, heading)
 
 
 def fig_steps(log, path: Path, title: str) -> None:
@@ -175,7 +174,7 @@ def invariant_analysis(log, members: list[int]):
     from hlip_jax import invariant as inv
     A, B, K = _plane_mats(log, members[0])
     sel = np.asarray(members)
-    valid = np.cumprod(np.asarray(log["valid"][sel], bool), axis=1).astype(bool)
+    valid = steplog.alive(log["valid"][sel])
     hold = 0.5 if len(members) >= 2 else 0.0
     heading = (np.asarray(log["ref_heading"][sel], np.float64)
                if store.analysis_frame(log, members[0]) == "heading" else None)
@@ -189,7 +188,7 @@ def fig_invariant(an, log, members, path: Path, title: str) -> None:
     from hlip_jax import invariant as inv
     plt = _plt()
     sel = np.asarray(members)
-    valid = np.cumprod(np.asarray(log["valid"][sel], bool), axis=1).astype(bool)
+    valid = steplog.alive(log["valid"][sel])
     sl = store.error_model(log, members[0])[3]
     e = np.asarray(log["e"][sel], np.float64)[..., sl]
     if store.analysis_frame(log, members[0]) == "heading":

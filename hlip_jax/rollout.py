@@ -34,10 +34,8 @@ from hlip_jax import hlip, mpc, paths, qp
 from hlip_jax.config import ScenarioConfig
 from hlip_jax.plants import hlip_plant
 from hlip_jax.plants.base import StepCommand
+from hlip_jax.steplog import STATUS_FELL, STATUS_NONFINITE, STATUS_OK, STATUS_QP_FAILED, Log
 
-STATUS_OK, STATUS_FELL, STATUS_NONFINITE, STATUS_QP_FAILED = 0, 1, 2, 3
-STATUS_NAMES = {STATUS_OK: "ok", STATUS_FELL: "fell", STATUS_NONFINITE: "nonfinite",
-                STATUS_QP_FAILED: "qp_failed"}
 STANCE_LEFT, STANCE_RIGHT = 0, 1
 
 
@@ -64,32 +62,6 @@ class Static(NamedTuple):
     plant: str
     plant_settings: Optional[qp.Settings] = None   # the Cassie CLF-QP's ADMM settings
     keep_ticks: bool = False                       # also return the plant's per-tick log
-
-
-class Log(NamedTuple):
-    """Per-step record; see the module doc of the fields' meaning. Leading axes (S, K)."""
-    t: np.ndarray
-    t_plant: np.ndarray
-    stance: np.ndarray
-    x_hlip: np.ndarray
-    x_robot: np.ndarray
-    e: np.ndarray
-    w: np.ndarray
-    u_hlip: np.ndarray
-    u_robot: np.ndarray
-    ref_pos: np.ndarray
-    ref_vel: np.ndarray
-    ref_heading: np.ndarray
-    qp_status: np.ndarray
-    qp_iter: np.ndarray
-    obstacle_slack: np.ndarray
-    clearance: np.ndarray
-    valid: np.ndarray
-    status: np.ndarray
-    fail_step: np.ndarray
-    A: np.ndarray
-    B: np.ndarray
-    K_gain: np.ndarray
 
 
 # ----------------------------------------------------------------------------------------------
@@ -474,7 +446,7 @@ def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to
         out = run(batch, static)
     out = jax.tree.map(lambda a: _to_host(a)[:S], out)
     valid = out["valid"]
-    valid_w = valid & np.concatenate([valid[:, 1:], np.zeros((S, 1), bool)], axis=1)
+    valid_w = valid & np.concatenate([valid[:, 1:], np.zeros((S, 1), bool)], axis=1)  # k, k+1
     out["w"] = np.where(valid_w[..., None, None], out["w"], np.nan)
     return Log(A=np.asarray(host.mpc.A)[:S], B=np.asarray(host.mpc.B)[:S],
                K_gain=np.asarray(host.gain)[:S], **out)

@@ -77,6 +77,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from hlip_jax import steplog
 from hlip_jax import sweep as sweep_mod
 
 __all__ = [
@@ -88,15 +89,9 @@ __all__ = [
 MANIFEST = "manifest.json"
 SUMMARY = "summary.csv"
 CHUNK_DIR = "chunks"
-STATUS_NAMES = {0: "ok", 1: "fell", 2: "nonfinite", 3: "qp_failed"}
-
-LOG_FIELDS = ("t", "t_plant", "stance", "x_hlip", "x_robot", "e", "w", "u_hlip", "u_robot", "ref_pos",
-              "ref_vel", "ref_heading", "qp_status", "qp_iter", "obstacle_slack", "clearance",
-              "valid", "status", "fail_step", "A", "B", "K_gain")
-# fields with a step axis (axis 1), padded when chunks of different K are concatenated
-STEP_FIELDS = ("t", "t_plant", "stance", "x_hlip", "x_robot", "e", "w", "u_hlip", "u_robot", "ref_pos",
-               "ref_vel", "ref_heading", "qp_status", "qp_iter", "obstacle_slack", "clearance",
-               "valid")
+STATUS_NAMES = steplog.STATUS_NAMES
+LOG_FIELDS = steplog.FIELDS
+STEP_FIELDS = steplog.STEP_FIELDS      # padded when chunks of different K are concatenated
 
 SUMMARY_METRICS = (
     "steps", "rms_track_err", "max_track_err", "rms_pos_err", "final_pos_err",
@@ -356,7 +351,7 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> di
     e = np.asarray(log["e"][s], np.float64)[:, :, sl]
     # the error system's disturbance d = w + B δu: w from the robot's own S2S data (same
     # definition as the log's w), δu its foot-placement error
-    w = x[1:] - (np.einsum("ij,kpj->kpi", A, x[:-1]) + B[None, None, :] * u[:-1, :, None])
+    w = steplog.s2s_residual(A, B, x, u)
     w = w + B[None, None, :] * du[:-1, :, None]
     frame = analysis_frame(log, s)
     if frame == "heading":
@@ -415,8 +410,7 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
                      push_time: float | None = None) -> dict:
     """Summary metrics of scenario ``s`` of a log dict (see the module docstring);
     ``push_time`` [s]: start of the scenario's first push (None: no push)."""
-    valid = np.asarray(log["valid"][s], bool)
-    mask = np.cumprod(valid).astype(bool)       # steps before any failure
+    mask = steplog.alive(log["valid"][s])       # steps before any failure
     n = int(mask.sum())
     m = {k: math.nan for k in SUMMARY_METRICS}
     m["steps"] = n

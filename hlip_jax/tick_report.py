@@ -15,6 +15,8 @@ import pathlib
 
 import numpy as np
 
+from hlip_jax import steplog
+
 #: output rows of hlip_jax.plants.cassie.outputs grouped for the figure
 GROUPS = {"pelvis orientation [rad]": slice(0, 3), "COM height [m]": slice(3, 4),
           "foot position [m]": slice(6, 12), "sole slope [m]": slice(12, 14),
@@ -81,6 +83,6 @@ def replay(out_dir, index: int) -> tuple[pathlib.Path, pathlib.Path]:
     folder.mkdir(exist_ok=True)
     npz, png = folder / f"{index}.npz", folder / f"{index}.png"
     store.save_npz_atomic(npz, flat)
-    status = rollout.STATUS_NAMES.get(int(step_log["status"]), "?")
+    status = steplog.STATUS_NAMES.get(int(step_log["status"]), "?")
     figure(flat, f"#{index} {configs[index].name} ({status})", png)
     return npz, png

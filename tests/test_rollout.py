@@ -10,7 +10,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np
 import pytest
 
-from hlip_jax import rollout
+from hlip_jax import rollout, steplog
 from hlip_jax.config import (DisturbanceConfig, ObstacleConfig, PathConfig, PushConfig,
                              ScenarioConfig)
 
@@ -73,7 +73,7 @@ def test_paths_tracked(run, shape, speed):
     """Acceptance: mean pre-impact COM-to-path error ≤ 0.10 m and final position within 0.10 m."""
     _, _, log = run
     i = _idx(run, f"{shape}-{speed}")
-    assert log.status[i] == rollout.STATUS_OK
+    assert log.status[i] == steplog.STATUS_OK
     err = _path_error(log, i)
     assert err.mean() <= 0.10, err.mean()
     assert err[-1] <= 0.10, err[-1]
@@ -135,7 +135,7 @@ def test_push_recovery(run):
     """200 N lateral for 0.1 s at t = 10 s on 33 kg: back within 0.10 m of the H-LIP in 6 steps."""
     _, _, log = run
     i = _idx(run, "push")
-    assert log.status[i] == rollout.STATUS_OK
+    assert log.status[i] == steplog.STATUS_OK
     e = np.abs(log.e[i, :, :, :2]).max(axis=(1, 2))      # c and p errors [m]
     k_push = int(np.floor(10.0 / log.t[i, 1] + 1e-9)) + 1  # first SSP- after the push began
     assert e[k_push] > 0.02                              # the push is felt
@@ -148,7 +148,7 @@ def test_failure_is_isolated(run):
     same numbers as in a batch where that robot does not fall."""
     names, cases, log = run
     i = _idx(run, "fall")
-    assert log.status[i] == rollout.STATUS_FELL
+    assert log.status[i] == steplog.STATUS_FELL
     assert log.fail_step[i] >= 0
     assert not log.valid[i, log.fail_step[i] + 1:].any()
     benign = [cases["push"] if n == "fall" else cases[n] for n in names]
@@ -185,7 +185,7 @@ def test_disturbance_recursion(run):
 def test_measured_mode_runs(run):
     _, _, log = run
     i = _idx(run, "measured")
-    assert log.status[i] == rollout.STATUS_OK
+    assert log.status[i] == steplog.STATUS_OK
     assert _path_error(log, i).mean() <= 0.10
 
 

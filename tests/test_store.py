@@ -12,12 +12,11 @@ import dataclasses
 import json
 import math
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 import pytest
 
-from hlip_jax import hlip, store, sweep
+from hlip_jax import hlip, steplog, store, sweep
 
 TINY = """
 name = "tiny"
@@ -42,29 +41,7 @@ with_position = false
 """
 
 
-class FakeLog(NamedTuple):
-    t: np.ndarray
-    t_plant: np.ndarray
-    stance: np.ndarray
-    x_hlip: np.ndarray
-    x_robot: np.ndarray
-    e: np.ndarray
-    w: np.ndarray
-    u_hlip: np.ndarray
-    u_robot: np.ndarray
-    ref_pos: np.ndarray
-    ref_vel: np.ndarray
-    ref_heading: np.ndarray
-    qp_status: np.ndarray
-    qp_iter: np.ndarray
-    obstacle_slack: np.ndarray
-    clearance: np.ndarray
-    valid: np.ndarray
-    status: np.ndarray
-    fail_step: np.ndarray
-    A: np.ndarray
-    B: np.ndarray
-    K_gain: np.ndarray
+FakeLog = steplog.Log        # the fake closed loop fills the real step log
 
 
 def fake_simulate(configs, chunk=None, calls=None):
