@@ -8,9 +8,11 @@
     hlip-sweep show SWEEP [--plant ...] [--duration S] [--limit N]
 
 SWEEP is a path to a TOML sweep file or the name of a shipped one (``paper`` for
-``sweeps/paper.toml``).  Exit codes: 0 success; 1 the run finished but is incomplete
-(``--max-chunks``); 2 user error (bad sweep file, missing directory, refused resume) with a
-one-line message and no traceback; 130 interrupted (Ctrl-C; rerun with ``--resume``).
+``sweeps/paper.toml``).  Exit codes: 0 success; 1 the run stopped incomplete (``--max-chunks``,
+or a file-system error such as a full disk while writing chunks; rerun with ``--resume``); 2
+user error (bad sweep file, unusable or busy results directory, refused resume, corrupt chunk)
+with a one-line message and no traceback; 130 interrupted (Ctrl-C) and 143 terminated
+(SIGTERM), both leaving the manifest "incomplete" (rerun with ``--resume``).
 
 ``HLIP_SWEEP_SIMULATE=module:function`` replaces the closed loop
 (:func:`hlip_jax.rollout.simulate`) by another function of the same contract — used by tests
@@ -20,19 +22,45 @@ and for trying alternative plants without editing the package.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
+import signal
 import sys
 from pathlib import Path
 
 from hlip_jax import resources
 
-EXIT_OK, EXIT_INCOMPLETE, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_OK, EXIT_INCOMPLETE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
 PROG = "hlip-sweep"
 
 
 class UserError(Exception):
     """Reported as one line on stderr, exit code 2."""
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived: unwinds like Ctrl-C (a BaseException, so no ``except Exception`` stops
+    it), leaving finished chunks and an "incomplete" manifest."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+@contextlib.contextmanager
+def _sigterm_unwinds():
+    """Within the block, SIGTERM raises :class:`Terminated` (in the main thread only; elsewhere
+    the default action stays)."""
+    try:
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:          # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def shipped_dir() -> Path:
@@ -173,21 +201,26 @@ def cmd_run(args) -> int:
     from hlip_jax import report, store
     sw = _load(args)
     out = Path(args.out) if args.out else Path("results") / sw.name
-    if out.exists() and not out.is_dir():
+    try:
+        not_dir = out.exists() and not out.is_dir()
+    except OSError as err:      # e.g. a name too long for the file system
+        raise UserError(f"--out {out}: unusable as a results directory: "
+                        f"{err.strerror or err}") from None
+    if not_dir:
         raise UserError(f"--out {out}: exists and is not a directory")
     if args.resume and args.overwrite:
         raise UserError("--resume and --overwrite exclude each other")
     sim = _simulate_override()
     if args.distributed:
         import jax
-        jax.distributed.initialize()
+        _init_distributed(jax)
         if jax.process_index() != 0:
             # the others compute their shards and keep a private copy of the store
             out = out / f".process-{jax.process_index()}"
             args.no_report = True
             args.quiet = True
     if not args.quiet:
-        print(f"{PROG}: {sw.name}: {len(sw.scenarios)} scenarios -> {out}", file=sys.stderr)
+        print(f"{PROG}: {sw.name}: {sw.n_scenarios} scenarios -> {out}", file=sys.stderr)
     res = store.run_sweep(sw, out, batch=args.batch, resume=args.resume,
                           overwrite=args.overwrite, simulate=sim, max_chunks=args.max_chunks,
                           progress=not args.quiet, with_coverage=not args.no_coverage)
@@ -203,11 +236,30 @@ def cmd_run(args) -> int:
     return EXIT_OK
 
 
+def _init_distributed(jax) -> None:
+    """``jax.distributed.initialize()``: coordinator, process count and id from a cluster's
+    environment (SLURM, ...) or from ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and
+    ``JAX_PROCESS_ID`` (e.g. several processes on one host, CPU devices included)."""
+    kw = {}
+    for env, key in (("JAX_NUM_PROCESSES", "num_processes"), ("JAX_PROCESS_ID", "process_id")):
+        text = os.environ.get(env)
+        if text is None:
+            continue
+        if not text.isdigit():
+            raise UserError(f"{env}={text!r}: expected an integer >= 0")
+        kw[key] = int(text)
+    try:
+        jax.distributed.initialize(**kw)
+    except (ValueError, RuntimeError) as err:
+        raise UserError(f"--distributed: cannot start: {' '.join(str(err).split())[:300]}") from None
+
+
 def cmd_report(args) -> int:
-    from hlip_jax import report
+    from hlip_jax import report, store
     d = Path(args.dir)
     if not d.is_dir():
         raise UserError(f"{d}: results directory not found")
+    store.check_chunks(d)           # a truncated or altered chunk is named before any figure
     html, md = report.write_report(d, heatmap_axes=args.heatmap)
     print(f"report: {html}")
     print(f"        {md}")
@@ -286,14 +338,42 @@ def main(argv=None) -> int:
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
                "bench": cmd_bench, "ticks": cmd_ticks}[args.cmd]
     try:
-        return handler(args)
+        with _sigterm_unwinds():
+            return handler(args)
     except (UserError, SweepError, StoreError, ReportError) as err:
-        print(f"{PROG}: error: {err}", file=sys.stderr)
-        return EXIT_USAGE
+        return _fail(str(err), EXIT_USAGE)
+    except RecursionError:
+        return _fail("input nested too deeply to process (recursion limit)", EXIT_USAGE)
+    except BrokenPipeError:     # the reader of stdout went away (`hlip-sweep list | head`)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
+    except OSError as err:
+        return _os_error(args, err)
     except KeyboardInterrupt:
         print(f"\n{PROG}: interrupted; finished chunks are kept: rerun with --resume",
               file=sys.stderr)
         return EXIT_INTERRUPTED
+    except Terminated:
+        print(f"{PROG}: terminated (SIGTERM); finished chunks are kept: rerun with --resume",
+              file=sys.stderr)
+        return EXIT_TERMINATED
+
+
+def _fail(msg: str, code: int) -> int:
+    """Print ``msg`` as the one error line (newlines folded) and return ``code``."""
+    print(f"{PROG}: error: {' '.join(msg.splitlines())}", file=sys.stderr)
+    return code
+
+
+def _os_error(args, err: OSError) -> int:
+    """A file-system error: during ``run`` the run is incomplete (exit 1: finished chunks are
+    kept, resume once the cause is fixed); elsewhere exit 2."""
+    where = f"{err.filename}: " if err.filename else ""
+    what = f"{where}{err.strerror or err}"
+    if args.cmd == "run":
+        return _fail(f"cannot write the results: {what}; finished chunks are kept: fix this and "
+                     f"rerun with --resume", EXIT_INCOMPLETE)
+    return _fail(what, EXIT_USAGE)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -7,6 +7,10 @@ Layout of ``DIR``::
     chunks/chunk_00000.npz  the closed-loop Log of scenarios [0, batch), plus per-scenario
                             metrics (keys ``metric.<name>``) and ``index`` (global scenario ids)
     summary.csv             one row per scenario (see :data:`SUMMARY_METRICS`)
+    coverage.csv            across-run coverage per (group, plane, W method): W and E from
+                            training runs, coverage of the test runs' errors with a 95 %
+                            Clopper–Pearson interval (:func:`write_coverage`,
+                            :mod:`hlip_jax.coverage`)
 
 Every file is written atomically (temporary file in the same directory, then ``os.replace``), so
 a killed run leaves only complete chunks.  Chunk ``i`` holds scenarios ``[i·batch, (i+1)·batch)``
@@ -17,7 +21,14 @@ writing.  Chunks are deterministic: a scenario's seed comes from its config
 run's arrays equal an uninterrupted run's byte for byte.
 
 Resume: ``--resume`` requires the manifest's config hash (sha256 of the expanded configs and the
-chunk size) to match; finished chunks (readable, with the expected ``index``) are skipped.
+chunk size) to match; finished chunks are skipped after a full check (:func:`chunk_problem`:
+every array read, so every CRC-32 checked, every field present, every shape and the ``index``
+right); a bad chunk is named and simulated again.
+
+A run holds ``DIR/.lock`` (:func:`results_lock`, an ``flock`` naming the holder's pid) from
+start to end, so a second run into the same directory fails at once; files are created with
+the permissions the umask gives.  A run that finishes with a negative ``min_clearance`` has the
+summary status ``collision`` (a failure), not ``ok``.
 
 Metrics (per scenario, over valid pre-impact samples k, i.e. steps before any failure):
 
@@ -58,9 +69,11 @@ Metrics (per scenario, over valid pre-impact samples k, i.e. steps before any fa
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import datetime as _dt
+import fcntl
 import functools
 import io
 import json
@@ -71,6 +84,8 @@ import subprocess
 import sys
 import tempfile
 import time
+import zipfile
+import zlib
 from importlib import metadata
 from pathlib import Path
 from typing import Callable, Sequence
@@ -83,10 +98,12 @@ from hlip_jax import sweep as sweep_mod
 __all__ = [
     "StoreError", "LOG_FIELDS", "SUMMARY_METRICS", "RunResult", "run_sweep", "chunk_ranges",
     "write_atomic", "save_npz_atomic", "read_manifest", "load_chunk", "load_log",
-    "scenario_metrics", "write_summary", "read_summary", "chunk_files",
+    "scenario_metrics", "write_summary", "read_summary", "chunk_files", "write_coverage",
+    "read_coverage", "coverage_rows", "results_lock", "chunk_problem", "check_chunks",
 ]
 
 MANIFEST = "manifest.json"
+LOCK = ".lock"              # held (flock) by the run writing the directory; names its pid
 SUMMARY = "summary.csv"
 CHUNK_DIR = "chunks"
 STATUS_NAMES = steplog.STATUS_NAMES
@@ -114,12 +131,21 @@ class StoreError(RuntimeError):
 # atomic files
 
 
+def _file_mode() -> int:
+    """Permissions of a new file under the process umask (what ``open`` would give)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def write_atomic(path, data: bytes | str) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and ``os.replace``."""
+    """Write ``data`` to ``path`` via a temporary file in the same directory and ``os.replace``
+    (permissions as the umask gives any new file, not ``mkstemp``'s 0600)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, _file_mode())
         with os.fdopen(fd, "wb") as fh:
             fh.write(data.encode() if isinstance(data, str) else data)
             fh.flush()
@@ -220,18 +246,60 @@ def chunk_files(out_dir) -> list[Path]:
     return sorted((Path(out_dir) / CHUNK_DIR).glob("chunk_*.npz"))
 
 
+#: what reading a truncated or altered .npz raises (zipfile checks each member's CRC-32)
+_CORRUPT = (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error)
+
+
 def load_chunk(path) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
-
-
-def _chunk_ok(path: Path, start: int, stop: int) -> bool:
+    """Every array of a chunk file, read in full; StoreError naming the file if it is
+    unreadable, truncated or fails a CRC check."""
     try:
         with np.load(path, allow_pickle=False) as z:
-            idx = z["index"]
-            return idx.shape == (stop - start,) and bool(np.all(idx == np.arange(start, stop)))
-    except Exception:
-        return False
+            return {k: z[k] for k in z.files}
+    except _CORRUPT as err:
+        raise StoreError(f"{path}: corrupt or unreadable chunk ({type(err).__name__}: {err}); "
+                         f"`hlip-sweep run SWEEP --out DIR --resume` simulates it again") from None
+
+
+def chunk_problem(path, start: int, stop: int) -> str | None:
+    """Why the chunk file ``path`` cannot stand for scenarios [start, stop), or None if it is
+    sound: missing, unreadable or corrupt (every array is read, so every CRC is checked), a
+    log field missing, an array whose leading size is not the chunk's scenario count, step
+    arrays of unequal step counts, or an ``index`` other than start..stop-1."""
+    path = Path(path)
+    if not path.is_file():
+        return "missing"
+    try:
+        z = load_chunk(path)
+    except StoreError as err:
+        return str(err).split(": ", 1)[1].split("; ", 1)[0]
+    missing = [k for k in (*LOG_FIELDS, "index") if k not in z]
+    if missing:
+        return f"lacks the array(s) {', '.join(missing)}"
+    n = stop - start
+    for k, v in z.items():
+        if v.ndim == 0 or v.shape[0] != n:
+            return f"array {k!r} has shape {v.shape}; expected {n} scenarios first"
+    K = z["t"].shape[1] if z["t"].ndim > 1 else None
+    for k in STEP_FIELDS:
+        if k in z and (z[k].ndim < 2 or z[k].shape[1] != K):
+            return f"array {k!r} has shape {z[k].shape}; expected {K} steps second"
+    if not np.array_equal(z["index"], np.arange(start, stop)):
+        return f"holds other scenarios (index {z['index'][:3].tolist()}...; expected {start}..{stop - 1})"
+    return None
+
+
+def check_chunks(out_dir) -> None:
+    """Verify every stored chunk of a results directory fully (:func:`chunk_problem`) against
+    the manifest's chunk size; StoreError naming the first bad chunk."""
+    man = read_manifest(out_dir)
+    n, batch = int(man.get("n_scenarios", 0)), int(man.get("batch", 0))
+    for i, (a, b) in enumerate(chunk_ranges(n, batch) if n and batch else ()):
+        p = chunk_path(out_dir, i)
+        why = chunk_problem(p, a, b) if p.is_file() else None
+        if why is not None:
+            raise StoreError(f"{p}: {why}; `hlip-sweep run SWEEP --out {out_dir} --resume` "
+                             f"simulates the chunk again")
 
 
 def _log_to_arrays(log, n: int) -> dict[str, np.ndarray]:
@@ -269,12 +337,12 @@ def load_log(out_dir, indices: Sequence[int] | None = None) -> dict[str, np.ndar
     want = None if indices is None else {int(i) for i in indices}
     parts = []
     for f in files:
-        with np.load(f, allow_pickle=False) as z:
-            idx = z["index"]
-            sel = np.arange(idx.size) if want is None else np.flatnonzero(np.isin(idx, list(want)))
-            if sel.size == 0:
-                continue
-            parts.append({k: z[k][sel] for k in z.files})
+        z = load_chunk(f)
+        idx = z["index"]
+        sel = np.arange(idx.size) if want is None else np.flatnonzero(np.isin(idx, list(want)))
+        if sel.size == 0:
+            continue
+        parts.append({k: z[k][sel] for k in z})
     if not parts:
         raise StoreError(f"{out_dir}: none of the scenarios {sorted(want)} is stored")
     K = max(p["t"].shape[1] for p in parts)
@@ -340,11 +408,12 @@ def analysis_frame(log: dict, s: int) -> str:
     return "heading" if K.ndim == 1 or np.array_equal(K[0], K[1]) else "world"
 
 
-def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> dict:
-    """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring); ``du``
-    (K, 2): the scenario's foot-placement errors (:func:`_placement`)."""
+def error_samples(log: dict, s: int, mask: np.ndarray, du: np.ndarray):
+    """(A, B, K, e, w, wmask) of scenario ``s`` in its analysis frame and state
+    (:func:`analysis_frame`, :func:`error_model`): errors e (K, 2, n), error-system
+    disturbances w (K−1, 2, n) with e_{k+1} = (A + BK) e_k + w_k, and the mask of counted w
+    (both ends in ``mask``); ``du`` (K, 2): the foot-placement errors (:func:`_placement`)."""
     from hlip_jax import invariant as inv
-    out = {}
     A, B, Kg, sl = error_model(log, s)
     x = np.asarray(log["x_robot"][s], np.float64)[:, :, sl]     # (K, 2, n)
     u = np.asarray(log["u_robot"][s], np.float64)
@@ -353,12 +422,19 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> di
     # definition as the log's w), δu its foot-placement error
     w = steplog.s2s_residual(A, B, x, u)
     w = w + B[None, None, :] * du[:-1, :, None]
-    frame = analysis_frame(log, s)
-    if frame == "heading":
+    if analysis_frame(log, s) == "heading":
         Acl0 = A + np.outer(B, Kg[0])
         e, w = inv.heading_frame(np.where(mask[:, None, None], e, 0.0), w,
                                  np.asarray(log["ref_heading"][s], np.float64), Acl0)
-    wmask = mask[1:] & mask[:-1]
+    return A, B, Kg, e, w, mask[1:] & mask[:-1]
+
+
+def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> dict:
+    """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring); ``du``
+    (K, 2): the scenario's foot-placement errors (:func:`_placement`)."""
+    from hlip_jax import invariant as inv
+    out = {}
+    A, B, Kg, e, w, wmask = error_samples(log, s, mask, du)
     nK = int(mask.sum())
     half = nK // 2
     for p, plane in enumerate("xy"):
@@ -471,6 +547,20 @@ def summary_columns(configs: list[dict]) -> list[str]:
             + ["status", "fail_step"] + list(SUMMARY_METRICS))
 
 
+#: summary status of a run that finished but whose COM entered an obstacle's disc
+STATUS_COLLISION = "collision"
+
+
+def _status_name(st: int, z: dict, j: int) -> str:
+    """The summary status of row ``j`` of a chunk: the closed loop's status, except that a run
+    that finished with a negative ``min_clearance`` counts as a failure, "collision"."""
+    name = STATUS_NAMES.get(st, str(st))
+    clear = z.get("metric.min_clearance")
+    if name == "ok" and clear is not None and float(clear[j]) < 0.0:
+        return STATUS_COLLISION
+    return name
+
+
 def write_summary(out_dir) -> Path:
     """Write ``summary.csv`` from the manifest's configs and the stored chunk metrics."""
     man = read_manifest(out_dir)
@@ -486,7 +576,7 @@ def write_summary(out_dir) -> Path:
                    "shape": cfg["path"]["shape"], "plant": cfg["plant"], "seed": cfg["seed"]}
             row.update({k: v for k, v in cfg["swept"].items() if k != "path"})
             st = int(z["status"][j])
-            row["status"] = STATUS_NAMES.get(st, str(st))
+            row["status"] = _status_name(st, z, j)
             row["fail_step"] = int(z["fail_step"][j])
             for k in SUMMARY_METRICS:
                 if f"metric.{k}" not in z:      # a chunk written before the metric existed
@@ -510,6 +600,10 @@ def read_summary(out_dir) -> list[dict]:
     p = Path(out_dir) / SUMMARY
     if not p.is_file():
         raise StoreError(f"{out_dir}: no {SUMMARY}")
+    return _read_csv(p)
+
+
+def _read_csv(p: Path) -> list[dict]:
     rows = []
     with open(p, newline="") as fh:
         for r in csv.DictReader(fh):
@@ -524,6 +618,129 @@ def read_summary(out_dir) -> list[dict]:
                         out[k] = v
             rows.append(out)
     return rows
+
+
+# --------------------------------------------------------------------------------------------
+# coverage.csv
+
+COVERAGE = "coverage.csv"
+#: level q of the split-conformal W box in coverage.csv (:mod:`hlip_jax.coverage`)
+COVERAGE_Q = 0.9
+
+
+def _push_masks(t: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray]:
+    """(dpush (K−1,), epush (K,)) of a run with pre-impact plant times ``t`` (K,) [s]: steps
+    whose interval [t_k, t_{k+1}] overlaps a push, and errors at or after the first push."""
+    pushes = [(p.time, p.time + p.duration) for p in cfg.disturbance.pushes
+              if p.force > 0 and p.duration > 0]
+    dpush = np.zeros(t.size - 1, bool)
+    for a, b in pushes:
+        dpush |= (t[:-1] <= b) & (t[1:] >= a)
+    first = _first_push(cfg)
+    epush = t >= first - 1e-9 if first is not None else np.zeros(t.size, bool)
+    return dpush, epush
+
+
+def _run_samples(z: dict, j: int, cfg):
+    """(group key, A + BK per plane, frame, :class:`hlip_jax.coverage.RunSamples`) of row ``j``
+    of a chunk, with the same errors and disturbances as the summary metrics."""
+    from hlip_jax import coverage as cov
+    mask = steplog.alive(z["valid"][j])
+    A, B, Kg, e, w, wmask = error_samples(z, j, mask, _placement(z, j))
+    frame = analysis_frame(z, j)
+    ec = np.asarray(z["e"][j], np.float64)[:, :, 0]
+    if frame == "heading":
+        ec = steplog.to_heading_frame(ec, np.asarray(z["ref_heading"][j], np.float64))
+    t = np.asarray(z["t_plant"][j], np.float64)
+    dpush, epush = _push_masks(np.where(mask, t, np.inf), cfg)
+    Acl = np.stack([A + np.outer(B, Kg[p]) for p in range(2)])
+    key = (cfg.swept.get("path", ""), cfg.plant, frame,
+           np.round(np.concatenate([A.ravel(), B.ravel(), Kg.ravel()]), 12).tobytes())
+    return key, Acl, frame, cov.RunSamples(e, mask, epush & mask, w, wmask, dpush & wmask, ec)
+
+
+def _group_label(cfgs: list) -> str:
+    """The path (paths joined by '+'), then the swept fields (not the seed) that every run of
+    the group shares."""
+    first = cfgs[0].swept
+    same = [f"{k}={v}" for k, v in first.items() if k not in ("path", "seed")
+            and all(c.swept.get(k) == v for c in cfgs)]
+    paths = "+".join(dict.fromkeys(str(c.swept.get("path", "")) for c in cfgs))
+    return paths + ("/" + ",".join(same) if same else "")
+
+
+def _coverage_groups(out_dir, field: str | None) -> list[dict]:
+    """Runs with a valid step, grouped by path, plant, analysis frame and S2S model (A, B, K);
+    the path is left out of the key when ``field`` is "path" (W from some paths, tested on
+    the others).  Each group: A_cl, frame, runs, keys (replicate keys, or the values of
+    ``field``), configs."""
+    configs = read_manifest(out_dir)["configs"]
+    groups: dict = {}
+    for f in chunk_files(out_dir):
+        z = load_chunk(f)
+        for j, i in enumerate(z["index"]):
+            cfg = sweep_mod.config_from_dict(configs[int(i)])
+            if not steplog.alive(z["valid"][j]).any():
+                continue
+            key, Acl, frame, run = _run_samples(z, j, cfg)
+            if field is not None and field not in cfg.swept:
+                raise StoreError(f"coverage train_on: {field!r} is not a swept field of "
+                                 f"scenario {cfg.name!r} (swept: {', '.join(cfg.swept)})")
+            g = groups.setdefault(key[1:] if field == "path" else key,
+                                  {"Acl": Acl, "frame": frame, "runs": [], "keys": [],
+                                   "cfgs": []})
+            g["runs"].append(run)
+            g["keys"].append(cfg.swept[field] if field is not None
+                             else cfg.swept.get("seed", int(i)))
+            g["cfgs"].append(cfg)
+    return list(groups.values())
+
+
+def coverage_rows(out_dir, q: float = COVERAGE_Q, train_on: tuple | None = None) -> list[dict]:
+    """coverage.csv rows of a results directory (:func:`hlip_jax.coverage.group_rows`) per
+    group of :func:`_coverage_groups`.  Default split: replicates are the values of the swept
+    ``seed`` (each run its own replicate when the seed is not swept).  ``train_on`` =
+    (field, values), e.g. ("path", ["circle"]): W from the runs whose swept ``field`` (a grid
+    field, or "path") takes one of ``values``, coverage on the others of the group."""
+    from hlip_jax import coverage as cov
+    if not 0.0 < q < 1.0:
+        raise StoreError(f"coverage q: expected a level in (0, 1), got {q!r}")
+    field, values = (None, None) if train_on is None else (train_on[0], list(train_on[1]))
+    rows, seen = [], {}
+    for g in _coverage_groups(out_dir, field):
+        label = _group_label(g["cfgs"])
+        seen[label] = seen.get(label, 0) + 1
+        label += f" #{seen[label]}" if seen[label] > 1 else ""
+        planes = ("sagittal", "lateral") if g["frame"] == "heading" else ("world x", "world y")
+        split = (f"{field} in {values}" if field is not None else
+                 "seed" if all("seed" in c.swept for c in g["cfgs"]) else "run")
+        rows += cov.group_rows(label, g["Acl"], g["runs"], g["keys"], planes, q,
+                               min_halfwidth=W_MIN_HALFWIDTH, split_name=split,
+                               train_values=values)
+    return rows
+
+
+def write_coverage(out_dir, q: float = COVERAGE_Q, train_on: tuple | None = None) -> Path:
+    """Write ``coverage.csv`` (columns :data:`hlip_jax.coverage.COLUMNS`) from the chunks
+    (:func:`coverage_rows`: split level ``q`` and ``train_on``)."""
+    from hlip_jax import coverage as cov
+    buf = io.StringIO()
+    wr = csv.writer(buf, lineterminator="\n")
+    wr.writerow(cov.COLUMNS)
+    for r in coverage_rows(out_dir, q, train_on):
+        wr.writerow([_cell(r[c]) for c in cov.COLUMNS])
+    p = Path(out_dir) / COVERAGE
+    write_atomic(p, buf.getvalue())
+    return p
+
+
+def read_coverage(out_dir) -> list[dict]:
+    """Rows of ``coverage.csv`` as dicts (numbers parsed where they parse); StoreError if
+    absent."""
+    p = Path(out_dir) / COVERAGE
+    if not p.is_file():
+        raise StoreError(f"{out_dir}: no {COVERAGE}")
+    return _read_csv(p)
 
 
 # --------------------------------------------------------------------------------------------
@@ -550,6 +767,12 @@ class Progress:
         self.t0 = time.monotonic()
         self.done0 = None
         self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+
+    def note(self, text: str) -> None:
+        """One line of news (a bad chunk found on resume) on the stream, even when the
+        progress itself is off: a repair is worth saying."""
+        self.stream.write(f"[{self.label}] {text}\n")
+        self.stream.flush()
 
     def update(self, done: int, note: str = "") -> None:
         if not self.enabled:
@@ -605,7 +828,9 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
       out_dir: results directory (created).
       batch: scenarios per chunk (one ``simulate`` call); default :func:`default_batch`,
         capped at the number of scenarios.  On resume, the manifest's value unless given.
-      resume: skip chunks already stored (config hash must match).
+      resume: skip chunks already stored (config hash must match); every stored chunk is
+        verified in full (:func:`chunk_problem`) and a bad one is simulated again, named on
+        the progress stream.
       overwrite: discard an existing run in ``out_dir`` (its manifest, chunks, summary).
       simulate: ``configs -> Log`` (default :func:`hlip_jax.rollout.simulate`).
       max_chunks: stop after simulating this many chunks (interruptions, tests).
@@ -613,31 +838,56 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
         scenario on a CPU core after a one-time JIT warm-up; False leaves those columns NaN,
         for very large sweeps).  Part of the config hash.
     Raises:
-      StoreError: the directory holds another run (or a different config, on resume).
+      StoreError: the directory holds another run (or a different config, on resume), another
+        process is running into it (:func:`results_lock`), or it cannot be created or written.
     """
     out = Path(out_dir)
     configs = list(sw.scenarios)
-    n = len(configs)
-    if n == 0:
+    if not configs:
         raise StoreError("the sweep expands to no scenarios")
-    existing = (out / MANIFEST).is_file()
-    old = read_manifest(out) if existing else None
-    if batch is None:
-        if resume and old is not None:
-            batch = int(old["batch"])
-        else:
-            batch = default_batch(n)
-    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
-        raise StoreError(f"--batch: expected an integer >= 1, got {batch!r}")
-    batch = min(batch, n)
-    extra = {"batch": batch} if with_coverage else {"batch": batch, "coverage": False}
-    chash = sweep_mod.config_hash(configs, extra)
+    with results_lock(out):
+        return _run_locked(sw, out, configs, batch, resume, overwrite, simulate, max_chunks,
+                           Progress(len(configs), sw.name, stream=stream, enabled=progress),
+                           with_coverage)
 
-    if existing and not (resume or overwrite):
+
+@contextlib.contextmanager
+def results_lock(out: Path):
+    """Hold an exclusive lock on the results directory ``out`` (created) while a run writes it.
+
+    The lock is an ``flock`` on ``out/.lock``, which records the holder's pid, host and start
+    time; the kernel drops it when the holder exits, however it exits, so a lock left by a dead
+    process is simply taken over.  Raises StoreError naming the holder if another process holds
+    it, or naming ``--out`` if the directory cannot be created."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as err:
+        raise StoreError(f"--out {out}: cannot create the results directory: "
+                         f"{err.strerror or err}") from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 300, 0).decode(errors="replace").strip() or "another process"
+            raise StoreError(f"--out {out}: another run is writing this directory ({holder}); "
+                             f"wait for it to finish or choose another --out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()} on {platform.node()} since {_now()}\n".encode(), 0)
+        yield out
+    finally:
+        os.close(fd)
+
+
+def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, chash: str,
+                    batch: int, with_coverage: bool) -> dict | None:
+    """Refuse a run into a directory holding another one (or resuming a different config);
+    with ``overwrite``, delete the old run.  Returns the manifest to continue, or None."""
+    if old is not None and not (resume or overwrite):
         state = "complete" if old.get("status") == "complete" else "incomplete"
         raise StoreError(f"{out} already holds a run ({state}); pass --resume to continue it, "
                          f"--overwrite to discard it, or choose another --out")
-    if existing and resume and old.get("config_hash") != chash:
+    if old is not None and resume and old.get("config_hash") != chash:
         why = ("the chunk size differs (manifest batch "
                f"{old.get('batch')}, now {batch})" if old.get("batch") != batch
                else "the coverage setting differs (--no-coverage)"
@@ -645,16 +895,18 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
                else "the expanded sweep config differs")
         raise StoreError(f"refusing to resume {out}: {why}; config hash {chash[:12]} vs "
                          f"{str(old.get('config_hash'))[:12]} in {MANIFEST}")
-    if existing and overwrite and not resume:
+    if old is not None and overwrite and not resume:
         for f in chunk_files(out):
             f.unlink()
         for name in (SUMMARY, MANIFEST):
             (out / name).unlink(missing_ok=True)
-        old = None
-    (out / CHUNK_DIR).mkdir(parents=True, exist_ok=True)
+        return None
+    return old if resume else None
 
-    ranges = chunk_ranges(n, batch)
-    man = dict(old) if (resume and old) else {
+
+def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_coverage: bool) -> dict:
+    """The manifest of a fresh run (before the environment and status fields)."""
+    return {
         "format": 1,
         "sweep_name": sw.name,
         "sweep_file": sw.source,
@@ -663,46 +915,85 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
         "axes": [{"fields": list(a.fields), "values": [list(v) for v in a.values],
                   "zipped": a.zipped} for a in sw.axes],
         "paths": list(sw.paths),
-        "n_scenarios": n,
+        "n_scenarios": len(configs),
         "total_before_limit": sw.total,
         "batch": batch,
         "with_coverage": with_coverage,
-        "n_chunks": len(ranges),
+        "n_chunks": n_chunks,
         "config_hash": chash,
         "configs": [sweep_mod.config_to_dict(c) for c in configs],
     }
+
+
+def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_chunks, bar,
+                with_coverage) -> RunResult:
+    """:func:`run_sweep` with the directory lock held."""
+    n = len(configs)
+    old = read_manifest(out) if (out / MANIFEST).is_file() else None
+    if batch is None:
+        batch = int(old["batch"]) if (resume and old is not None) else default_batch(n)
+    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+        raise StoreError(f"--batch: expected an integer >= 1, got {batch!r}")
+    batch = min(batch, n)
+    extra = {"batch": batch} if with_coverage else {"batch": batch, "coverage": False}
+    chash = sweep_mod.config_hash(configs, extra)
+    old = _check_existing(out, old, resume, overwrite, chash, batch, with_coverage)
+    ranges = chunk_ranges(n, batch)
+    man = dict(old) if old else _new_manifest(sw, configs, batch, len(ranges), chash,
+                                              with_coverage)
     man.update({"versions": _versions(), "jax": _jax_info(), "git_commit": _git_commit(),
                 "start_time": man.get("start_time") or _now(), "end_time": None,
                 "status": "running"})
     man.setdefault("resumed_at", [])
-    if resume and old:
+    if old:
         man["resumed_at"].append(_now())
-    _write_manifest(out, man)
+    try:
+        (out / CHUNK_DIR).mkdir(parents=True, exist_ok=True)
+        _write_manifest(out, man)
+    except OSError as err:
+        raise StoreError(f"--out {out}: cannot write the results directory: "
+                         f"{err.strerror or err}") from None
 
     sim = simulate if simulate is not None else _default_simulate(configs)
     t0 = time.monotonic()
-    bar = Progress(n, sw.name, stream=stream, enabled=progress)
-    done = sum(b - a for i, (a, b) in enumerate(ranges) if _chunk_ok(chunk_path(out, i), a, b))
+    good = _verify_stored(out, ranges, bar)
+    done = sum(b - a for i, (a, b) in enumerate(ranges) if i in good)
     bar.update(done, "resuming" if done else "compiling")
     ran = skipped = 0
     try:
         ran, skipped, done = _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks,
-                                         with_coverage, man)
+                                         with_coverage, good)
     except BaseException:
         # interrupted or failed: finished chunks stay; the manifest says the run is incomplete
-        man["status"] = "incomplete"
-        man["end_time"] = _now()
-        man["seconds"] = man.get("seconds", 0.0) + (time.monotonic() - t0)
-        _write_manifest(out, man)
+        man.update(status="incomplete", end_time=_now(),
+                   seconds=man.get("seconds", 0.0) + (time.monotonic() - t0))
+        with contextlib.suppress(OSError):    # e.g. the disk is full: the first error counts
+            _write_manifest(out, man)
         raise
-    complete = all(_chunk_ok(chunk_path(out, i), a, b) for i, (a, b) in enumerate(ranges))
-    man["status"] = "complete" if complete else "incomplete"
-    man["end_time"] = _now()
-    man["seconds"] = man.get("seconds", 0.0) + (time.monotonic() - t0)
+    complete = len(good) == len(ranges)
+    man.update(status="complete" if complete else "incomplete", end_time=_now(),
+               seconds=man.get("seconds", 0.0) + (time.monotonic() - t0))
     _write_manifest(out, man)
     if complete:
         write_summary(out)
+        write_coverage(out)
     return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0)
+
+
+def _verify_stored(out: Path, ranges, bar) -> set[int]:
+    """Indices of the stored chunks that are sound (:func:`chunk_problem`); each stored but
+    bad chunk is named on the progress stream and will be simulated again."""
+    good = set()
+    for i, (a, b) in enumerate(ranges):
+        p = chunk_path(out, i)
+        if not p.is_file():
+            continue
+        why = chunk_problem(p, a, b)
+        if why is None:
+            good.add(i)
+        else:
+            bar.note(f"{p.name}: {why}; simulating it again")
+    return good
 
 
 def _first_push(cfg) -> float | None:
@@ -710,11 +1001,13 @@ def _first_push(cfg) -> float | None:
     return min(p.time for p in pushes) if pushes else None
 
 
-def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, man):
+def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, good):
+    """Simulate and store every chunk not in ``good`` (verified stored chunk indices, which
+    grows as chunks are written); returns (chunks run, chunks skipped, scenarios done)."""
     ran = skipped = 0
     for i, (a, b) in enumerate(ranges):
         p = chunk_path(out, i)
-        if _chunk_ok(p, a, b):
+        if i in good:
             skipped += 1
             continue
         if max_chunks is not None and ran >= max_chunks:
@@ -733,6 +1026,7 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
         for k in SUMMARY_METRICS:
             arrays[f"metric.{k}"] = np.asarray([m[k] for m in mets], np.float64)
         save_npz_atomic(p, arrays)
+        good.add(i)
         ran += 1
         done += b - a
         bar.update(done)

@@ -40,7 +40,22 @@ Validation happens here, before anything is compiled: an unknown key (with the c
 key, via :mod:`difflib`), a wrong type, NaN/inf, a value outside the range declared in
 :mod:`hlip_jax.config` (or in the path's parameter spec), an empty grid axis, zip lists of
 unequal length — each raises :class:`SweepError` whose message names the field, the value and
-what is allowed.
+what is allowed.  Validation is complete here, so ``hlip-sweep show`` rejects whatever ``run``
+would, before any compile:
+
+* Names: the sweep name (a directory name) and path names (figure file names) are 1–100 and
+  1–64 characters of letters, digits, spaces and ``. _ - + = , @ ( )``, never starting with
+  ``.`` (so never ``.`` or ``..``); two path names may not give the same file slug
+  (:func:`file_slug`).
+* Static settings (:data:`STATIC_FIELDS`: the plant, the MPC horizon and the QP settings) take
+  one value across the sweep: not swept over several values, not overridden for one path.
+* Cross-field checks per scenario: step limits, durations of at least two steps, Cassie's
+  disturbances, a push starting before the run ends, no obstacle covering the path's start.
+* Sizes: fewer than :data:`MAX_SCENARIOS` scenarios, counted from the axes without building
+  them; tables and arrays at most :data:`MAX_DEPTH` deep; no byte-order mark.  A grid larger
+  than :data:`EAGER_SCENARIOS` is validated on a covering subset (:func:`_validation_points`:
+  every value of every axis, every combination of the axes that take part in cross-field
+  checks) and its scenarios are built on first use of :attr:`Sweep.scenarios`.
 
 Decisions:
 
@@ -56,25 +71,43 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import hashlib
 import itertools
 import json
 import math
+import re
 import tomllib
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from hlip_jax import config as C
 from hlip_jax.plants.cassie import gaits
 
 __all__ = [
     "SweepError", "Axis", "Sweep", "load_sweep", "parse_sweep", "config_to_dict",
-    "config_hash", "path_param_spec", "known_shapes", "MAX_SCENARIOS",
+    "config_hash", "path_param_spec", "known_shapes", "MAX_SCENARIOS", "file_slug",
+    "STATIC_FIELDS",
 ]
 
-MAX_SCENARIOS = 10_000_000  # a grid this large is a mistake, not a sweep
+#: a grid of this many scenarios or more is a mistake, not a sweep (allowed: fewer)
+MAX_SCENARIOS = 10_000_000
+#: grids up to this size are expanded and validated scenario by scenario at parse time; larger
+#: ones are validated on a covering subset (:func:`_validation_points`) and expanded on demand
+EAGER_SCENARIOS = 5_000
+#: deepest nesting of tables and arrays a sweep file may have (a real one needs about 6)
+MAX_DEPTH = 32
+#: longest sweep name (it names the results directory) and path name (it names figure files)
+MAX_NAME_LEN, MAX_PATH_NAME_LEN = 100, 64
+#: characters a sweep or path name may hold (it becomes a file or directory name)
+_NAME_RE = re.compile(r"[A-Za-z0-9 _.+=,@()-]+")
+_NAME_ALLOWED = "letters, digits, spaces and . _ - + = , @ ( ) (no slashes)"
+#: settings that are array shapes or compiled solver settings (:func:`hlip_jax.rollout.batch_of`
+#: requires them equal across a batch): one value per sweep
+STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.qp_max_iter", "mpc.qp_eps",
+                 "cassie.qp_max_iter", "cassie.qp_eps")
 
 TOP_KEYS = ("name", "description", "base", "paths", "grid")
 GRID_KEYS = ("product", "zip")
@@ -302,6 +335,34 @@ def _cross_checks(cfg: C.ScenarioConfig, where: str) -> None:
     if cfg.duration < 2 * T:
         raise SweepError(f"{where}: duration: {cfg.duration:g} s is shorter than two walking steps "
                          f"(2 × (hlip.t_ssp + hlip.t_dsp) = {2 * T:g} s); allowed: >= {2 * T:g}")
+    for i, p in enumerate(cfg.disturbance.pushes):
+        if p.time >= cfg.duration:
+            raise SweepError(f"{where}: disturbance.pushes.{i}.time: {p.time:g} s is at or after "
+                             f"the end of the run (duration = {cfg.duration:g} s), so the push "
+                             f"never acts; allowed: 0 <= time < {cfg.duration:g}")
+    if cfg.obstacles:
+        _check_start_clear(cfg, where)
+
+
+@functools.lru_cache(maxsize=256)
+def _path_start(shape: str, params_json: str) -> tuple[float, float]:
+    """(x, y) of a path at t = 0 [m], where the robot stands at the start."""
+    from hlip_jax import paths
+    p = paths.make_path(shape, **json.loads(params_json))
+    return float(p.x[0]), float(p.y[0])
+
+
+def _check_start_clear(cfg: C.ScenarioConfig, where: str) -> None:
+    """No obstacle disc may cover the path's start: the robot would begin inside it (negative
+    clearance from the first step)."""
+    sx, sy = _path_start(cfg.path.shape, json.dumps(cfg.path.params, sort_keys=True))
+    for i, o in enumerate(cfg.obstacles):
+        d = math.hypot(o.x - sx, o.y - sy)
+        if d < o.radius:
+            raise SweepError(f"{where}: obstacles.{i}: the disc at ({o.x:g}, {o.y:g}) with radius "
+                             f"{o.radius:g} m covers the path's start ({sx:g}, {sy:g}), where the "
+                             f"robot stands at t = 0 (distance {d:.3g} m); allowed: radius < "
+                             f"{d:.3g} m or the centre further from the start")
 
 
 # --------------------------------------------------------------------------------------------
@@ -328,8 +389,15 @@ class Sweep:
     text: str                         # the sweep file text, verbatim
     paths: tuple[str, ...]            # path names in order
     axes: tuple[Axis, ...]
-    scenarios: tuple[C.ScenarioConfig, ...]
     total: int                        # scenarios before --limit
+    n_scenarios: int                  # scenarios after --limit
+    #: builds the scenarios (a large grid is counted at parse time and built on demand)
+    expand: Callable[[], tuple] = dataclasses.field(repr=False, compare=False)
+
+    @functools.cached_property
+    def scenarios(self) -> tuple[C.ScenarioConfig, ...]:
+        """The expanded, validated scenarios (built on first use)."""
+        return tuple(self.expand())
 
     @property
     def swept_fields(self) -> tuple[str, ...]:
@@ -345,14 +413,18 @@ class Sweep:
             lines.append("  grid: none (one scenario per path)")
         for a in self.axes:
             kind = "zip" if a.zipped else "product"
+            shown = a.values if len(a) <= 12 else a.values[:8] + a.values[-2:]
             if len(a.fields) == 1:
-                vals = ", ".join(_fmt(v[0]) for v in a.values)
+                texts = [_fmt(v[0]) for v in shown]
             else:
-                vals = ", ".join("(" + ", ".join(_fmt(x) for x in v) + ")" for v in a.values)
+                texts = ["(" + ", ".join(_fmt(x) for x in v) + ")" for v in shown]
+            if len(shown) < len(a):
+                texts[8:8] = [f"... ({len(a) - 10} more)"]
+            vals = ", ".join(texts)
             lines.append(f"  axis [{kind}] {', '.join(a.fields)}: {len(a)} values: {vals}")
         n_grid = math.prod(len(a) for a in self.axes) if self.axes else 1
         lines.append(f"  scenarios: {len(self.paths)} paths x {n_grid} grid points = {self.total}"
-                     + (f" (limited to {len(self.scenarios)})" if len(self.scenarios) != self.total
+                     + (f" (limited to {self.n_scenarios})" if self.n_scenarios != self.total
                         else ""))
         return "\n".join(lines)
 
@@ -567,13 +639,34 @@ def parse_sweep(text: str, *, source: str = "<string>", plant: str | None = None
 
 
 def _loads(text: str, source: str) -> dict:
+    if text.startswith("\ufeff"):
+        raise SweepError(f"{source}: starts with a byte-order mark (U+FEFF); allowed: UTF-8 "
+                         "without a BOM (save the file as plain UTF-8)")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise SweepError(f"{source}: not valid TOML: {err}") from None
+    except RecursionError:
+        raise SweepError(f"{source}: not valid TOML: tables or arrays nested too deeply; "
+                         f"allowed: at most {MAX_DEPTH} levels") from None
+
+
+def _depth(doc, limit: int) -> int:
+    """Nesting depth of tables and arrays in ``doc``, counted without recursion up to ``limit``
+    + 1."""
+    level, deepest = [doc], 0
+    while level and deepest <= limit:
+        deepest += 1
+        level = [v for x in level for v in (x.values() if isinstance(x, dict) else x)
+                 if isinstance(v, (dict, list))]
+    return deepest
 
 
 def _expand_doc(doc, text, source, plant, duration, limit, default_name) -> Sweep:
+    for key, value in doc.items():
+        if isinstance(value, (dict, list)) and _depth(value, MAX_DEPTH - 1) >= MAX_DEPTH:
+            raise SweepError(f"{source}: {key}: tables or arrays nested more than {MAX_DEPTH} "
+                             f"levels deep; allowed: at most {MAX_DEPTH} levels")
     try:
         return _expand(doc, text, source, plant, duration, limit, default_name)
     except SweepError as err:
@@ -581,17 +674,92 @@ def _expand_doc(doc, text, source, plant, duration, limit, default_name) -> Swee
         raise SweepError(msg if msg.startswith(source) else f"{source}: {msg}") from None
 
 
+def _short(s: str, n: int = 40) -> str:
+    """``repr`` of ``s``, cut to about ``n`` characters for messages."""
+    return repr(s) if len(s) <= n else repr(s[:n]) + f"... ({len(s)} characters)"
+
+
+def _check_name(value, where: str, max_len: int, origin: str = "") -> str:
+    """A sweep or path name, which becomes a file or directory name: 1..``max_len`` characters
+    of :data:`_NAME_RE`, no leading '.' (so never '.' or '..'), no surrounding spaces."""
+    allowed = f"allowed: 1-{max_len} {_NAME_ALLOWED}, not starting with '.'"
+    if not isinstance(value, str):
+        raise SweepError(f"{where}: expected a string, got {_tname(value)} {_fmt(value)}; {allowed}")
+    bad = "".join(sorted(set(_NAME_RE.sub("", value))))
+    if not value.strip():
+        why = "is empty"
+    elif bad:
+        why = f"holds characters not allowed in a file name ({bad!r})"
+    elif len(value) > max_len:
+        why = f"is {len(value)} characters long"
+    elif value.startswith("."):
+        why = "starts with '.'"
+    elif value != value.strip():
+        why = "has leading or trailing spaces"
+    else:
+        return value
+    raise SweepError(f"{where}: {_short(value)}{origin} {why}; {allowed}")
+
+
+def file_slug(name: str) -> str:
+    """The file-name slug of a path name in the report's figures (``report._slug``)."""
+    out = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
+    return out.strip("_") or "x"
+
+
+@dataclass(frozen=True)
+class _PathEntry:
+    """One [[paths]] entry, validated: its name, shape, parameters, merged base table and the
+    config that table builds (for the static-settings check)."""
+    index: int
+    name: str
+    shape: str
+    params: dict
+    raw: dict
+    cfg: C.ScenarioConfig
+
+
 def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
     for k in doc:
         if k not in TOP_KEYS:
             raise _unknown_key(k, TOP_KEYS, "")
-    name = doc.get("name", default_name)
-    if not isinstance(name, str) or not name.strip() or any(c in name for c in "/\\\0"):
-        raise SweepError(f"name: expected a non-empty string without slashes, got {_fmt(name)}")
+    origin = "" if "name" in doc else " (the file's stem; set name = \"...\")"
+    name = _check_name(doc.get("name", default_name), "name", MAX_NAME_LEN, origin)
     desc = doc.get("description", "")
     if not isinstance(desc, str):
         raise SweepError(f"description: expected a string, got {_tname(desc)}")
+    base, base_path = _base_tables(doc, plant, duration)
+    entries = _parse_paths(doc, base, base_path)
+    axes = _parse_axes(doc.get("grid"))
+    n_grid = math.prod(len(a) for a in axes) if axes else 1
+    total = len(entries) * n_grid
+    if total >= MAX_SCENARIOS:
+        raise SweepError(f"grid: {total} scenarios ({len(entries)} paths x {n_grid} grid "
+                         f"points); allowed: fewer than {MAX_SCENARIOS}")
+    if limit is not None:
+        if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
+            raise SweepError(f"--limit: expected an integer >= 1, got {_fmt(limit)}")
+    keymap = {f: _resolve_field(f, "grid") for a in axes for f in a.fields}
+    _check_path_fields(entries, keymap)
+    _check_static(entries, axes)
+    stop = total if limit is None else min(limit, total)
+    if total <= EAGER_SCENARIOS:
+        scenarios = tuple(itertools.islice(_iter_scenarios(entries, axes, keymap), stop))
+        checked, expand = scenarios, lambda: scenarios
+    else:
+        checked = [_scenario_at(e, axes, keymap, pt) for e in entries
+                   for pt in _validation_points(axes)]
+        expand = lambda: tuple(itertools.islice(_iter_scenarios(entries, axes, keymap), stop))  # noqa: E731
+    _check_table_sizes(checked)
+    _check_static_scenarios(checked)
+    return Sweep(name=name, description=desc, source=source, text=text,
+                 paths=tuple(e.name for e in entries), axes=axes, total=total,
+                 n_scenarios=stop, expand=expand)
 
+
+def _base_tables(doc: dict, plant, duration) -> tuple[dict, dict]:
+    """([base] with the command-line overrides, [base.path]), the base validated alone so its
+    errors name base.* fields."""
     base = doc.get("base", {})
     if not isinstance(base, dict):
         raise SweepError(f"base: expected a table, got {_tname(base)} {_fmt(base)}")
@@ -603,9 +771,13 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
         base["plant"] = plant
     if duration is not None:
         base["duration"] = duration
-    # validate the base alone first, so its errors name base.* fields
     _build(C.ScenarioConfig, base, "base", exclude=BASE_EXCLUDE)
+    return base, base_path
 
+
+def _parse_paths(doc: dict, base: dict, base_path: dict) -> list[_PathEntry]:
+    """The validated [[paths]] entries: unique names with unique file slugs, parameters
+    checked against the shape, overrides merged into the base."""
     shapes = known_shapes()
     paths_raw = doc.get("paths")
     if paths_raw is None:
@@ -613,7 +785,7 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
                          f"(one of {', '.join(shapes)})")
     if not isinstance(paths_raw, list) or not paths_raw:
         raise SweepError(f"paths: expected a non-empty array of tables ([[paths]]), got {_fmt(paths_raw)}")
-    paths = []   # (name, shape, params, merged base)
+    entries: list[_PathEntry] = []
     names_seen: dict[str, int] = {}
     for i, p in enumerate(paths_raw):
         loc = f"paths.{i}"
@@ -627,10 +799,14 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
         if pname is None:
             names_seen[shape] = names_seen.get(shape, 0) + 1
             pname = shape if names_seen[shape] == 1 else f"{shape}-{names_seen[shape]}"
-        if not isinstance(pname, str) or not pname.strip() or "/" in pname:
-            raise SweepError(f"{loc}.name: expected a non-empty string without '/', got {_fmt(pname)}")
-        if any(q[0] == pname for q in paths):
-            raise SweepError(f"{loc}.name: {pname!r} is used by two paths; names must be unique")
+        _check_name(pname, f"{loc}.name", MAX_PATH_NAME_LEN)
+        for e in entries:
+            if e.name == pname:
+                raise SweepError(f"{loc}.name: {pname!r} is used by two paths; names must be unique")
+            if file_slug(e.name) == file_slug(pname):
+                raise SweepError(f"{loc}.name: {pname!r} and {e.name!r} (paths.{e.index}) give the "
+                                 f"same file name {file_slug(pname)!r} for their figures; allowed: "
+                                 f"names that differ in letters, digits, '-' or '_'")
         own = {k: v for k, v in p.items() if k not in PATH_RESERVED}
         inherited = {k: v for k, v in base_path.items() if k not in own}
         params = {**_check_path_params(shape, inherited, "base.path",
@@ -640,61 +816,77 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
         if not isinstance(over, dict):
             raise SweepError(f"{loc}.overrides: expected a table, got {_tname(over)}")
         merged = _deep_merge(base, over)
-        _build(C.ScenarioConfig, _with_gait(merged, f"{loc}.overrides"), f"{loc}.overrides",
-               exclude=BASE_EXCLUDE)
-        paths.append((pname, shape, params, merged))
+        cfg = _build(C.ScenarioConfig, _with_gait(merged, f"{loc}.overrides"), f"{loc}.overrides",
+                     exclude=BASE_EXCLUDE)
+        entries.append(_PathEntry(i, pname, shape, params, merged, cfg))
+    return entries
 
-    axes = _parse_axes(doc.get("grid"))
-    n_grid = math.prod(len(a) for a in axes) if axes else 1
-    total = len(paths) * n_grid
-    if total > MAX_SCENARIOS:
-        raise SweepError(f"grid: {total} scenarios exceed the limit of {MAX_SCENARIOS}")
-    if limit is not None:
-        if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
-            raise SweepError(f"--limit: expected an integer >= 1, got {_fmt(limit)}")
 
-    resolved = [(f, _resolve_field(f, "grid")) for a in axes for f in a.fields]
-    keymap = dict(resolved)
-    # check path.* fields against every path's shape before expanding
-    for f, keys in resolved:
-        if keys[0] == "path":
-            for pname, shape, _, _ in paths:
-                spec = path_param_spec(shape)
-                if keys[1] not in spec:
-                    near = difflib.get_close_matches(keys[1], list(spec), n=1)
-                    hint = f"; did you mean 'path.{near[0]}'?" if near else ""
-                    raise SweepError(f"grid.{f!r}: path {pname!r} (shape {shape!r}) has no "
-                                     f"parameter {keys[1]!r}{hint} (known: {', '.join(spec)})")
+def _check_path_fields(entries: list[_PathEntry], keymap: dict) -> None:
+    """Every swept ``path.<param>`` must be a parameter of every path's shape."""
+    for f, keys in keymap.items():
+        if keys[0] != "path":
+            continue
+        for e in entries:
+            spec = path_param_spec(e.shape)
+            if keys[1] not in spec:
+                near = difflib.get_close_matches(keys[1], list(spec), n=1)
+                hint = f"; did you mean 'path.{near[0]}'?" if near else ""
+                raise SweepError(f"grid.{f!r}: path {e.name!r} (shape {e.shape!r}) has no "
+                                 f"parameter {keys[1]!r}{hint} (known: {', '.join(spec)})")
 
-    scenarios = []
-    stop = total if limit is None else min(limit, total)
-    for pname, shape, params, merged in paths:
-        for point in itertools.product(*[a.values for a in axes]) if axes else [()]:
-            if len(scenarios) >= stop:
-                break
-            raw = json.loads(json.dumps(merged))
-            pparams = dict(params)
-            swept: dict[str, Any] = {"path": pname}
-            labels = []
-            for a, vals in zip(axes, point):
-                for f, v in zip(a.fields, vals):
-                    keys = keymap[f]
-                    where = f"grid.{f!r} = {_fmt(v)} (path {pname!r})"
-                    if keys[0] == "path":
-                        pparams.update(_check_path_params(
-                            shape, {keys[1]: v}, "grid",
-                            lambda k: f"grid.{f!r} (path {pname!r}, shape {shape!r})"))
-                    else:
-                        _set_dotted(raw, keys, v, where)
-                    swept[f] = v
-                    labels.append(f"{f}={_value_label(v)}")
-            sname = pname + ("/" + ",".join(labels) if labels else "")
-            where = f"scenario {sname!r}"
-            cfg = _build(C.ScenarioConfig, _with_gait(raw, where), where, exclude=BASE_EXCLUDE)
-            cfg = dataclasses.replace(cfg, name=sname, seed=_derive_seed(cfg.seed, sname),
-                                      path=C.PathConfig(shape=shape, params=pparams), swept=swept)
-            _cross_checks(cfg, where)
-            scenarios.append(cfg)
+
+def _static_value(cfg: C.ScenarioConfig, field: str):
+    obj = cfg
+    for k in field.split("."):
+        obj = getattr(obj, k)
+    return obj
+
+
+def _check_static(entries: list[_PathEntry], axes: tuple[Axis, ...]) -> None:
+    """:data:`STATIC_FIELDS` must take one value across the sweep: swept over one value at
+    most, and equal in every path's settings where not swept."""
+    why = ("is a static setting (array shapes or compiled solver settings, equal for every "
+           "scenario of a run)")
+    swept = {}
+    for a in axes:
+        for j, f in enumerate(a.fields):
+            if f in STATIC_FIELDS:
+                vals = sorted({v[j] for v in a.values}, key=repr)
+                if len(vals) > 1:
+                    raise SweepError(f"grid.{f!r}: swept over {len(vals)} values "
+                                     f"({', '.join(map(_fmt, vals))}), but {f} {why}; allowed: "
+                                     f"one value per sweep (run one sweep per value)")
+                swept[f] = vals[0]
+    first = entries[0]
+    for f in STATIC_FIELDS:
+        if f in swept:
+            continue
+        v0 = _static_value(first.cfg, f)
+        for e in entries[1:]:
+            v = _static_value(e.cfg, f)
+            if v != v0:
+                raise SweepError(f"paths.{e.index}.overrides: {f} = {_fmt(v)} differs from "
+                                 f"{f} = {_fmt(v0)} of path {first.name!r}, but {f} {why}; "
+                                 f"allowed: the same value in every path")
+
+
+def _check_static_scenarios(scenarios) -> None:
+    """:data:`STATIC_FIELDS` equal across the built scenarios: catches what no single axis or
+    path sets, e.g. a swept ``cassie.gait`` whose presets fill different static values."""
+    first = scenarios[0] if scenarios else None
+    for cfg in scenarios[1:]:
+        for f in STATIC_FIELDS:
+            v, v0 = _static_value(cfg, f), _static_value(first, f)
+            if v != v0:
+                raise SweepError(f"scenario {cfg.name!r}: {f} = {_fmt(v)} differs from {f} = "
+                                 f"{_fmt(v0)} of scenario {first.name!r}, but {f} is a static "
+                                 f"setting (equal for every scenario of a run); allowed: one "
+                                 f"value per sweep")
+
+
+def _check_table_sizes(scenarios) -> None:
+    """Every path of a sweep needs the same ``n_samples`` (a static table size)."""
     sizes = {}
     for cfg in scenarios:
         spec = path_param_spec(cfg.path.shape)
@@ -706,9 +898,69 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
         raise SweepError(f"path.n_samples: every path of a sweep needs the same table size (a "
                          f"static shape), got {desc_sizes}; allowed: one value (set it in "
                          f"[base.path])")
-    return Sweep(name=name, description=desc, source=source, text=text,
-                 paths=tuple(p[0] for p in paths), axes=axes, scenarios=tuple(scenarios),
-                 total=total)
+
+
+#: grid fields whose values are checked on their own only (no cross-field check involves them)
+_INDEPENDENT = ("seed", "gain.", "mpc.")
+
+
+def _independent(field: str) -> bool:
+    return field.startswith(_INDEPENDENT) and not field.startswith("mpc.step_")
+
+
+def _validation_points(axes: tuple[Axis, ...]):
+    """Grid points (one value tuple per axis) that exercise every check of a large grid: the
+    product of the axes that take part in cross-field checks (durations, step limits,
+    disturbances, obstacles, path parameters, plant), the others at their first value; then
+    every value of each other axis once."""
+    dep = [i for i, a in enumerate(axes) if not all(_independent(f) for f in a.fields)]
+    first = [a.values[0] for a in axes]
+    for combo in itertools.product(*[axes[i].values for i in dep]):
+        pt = list(first)
+        for i, v in zip(dep, combo):
+            pt[i] = v
+        yield tuple(pt)
+    for i, a in enumerate(axes):
+        if i in dep:
+            continue
+        for v in a.values[1:]:
+            pt = list(first)
+            pt[i] = v
+            yield tuple(pt)
+
+
+def _iter_scenarios(entries: list[_PathEntry], axes: tuple[Axis, ...], keymap: dict):
+    """Every scenario, path-major, then the grid points in product order."""
+    for e in entries:
+        for point in itertools.product(*[a.values for a in axes]):
+            yield _scenario_at(e, axes, keymap, point)
+
+
+def _scenario_at(e: _PathEntry, axes: tuple[Axis, ...], keymap: dict, point) -> C.ScenarioConfig:
+    """The validated scenario of path ``e`` at grid ``point`` (one value tuple per axis)."""
+    raw = json.loads(json.dumps(e.raw))
+    pparams = dict(e.params)
+    swept: dict[str, Any] = {"path": e.name}
+    labels = []
+    for a, vals in zip(axes, point):
+        for f, v in zip(a.fields, vals):
+            keys = keymap[f]
+            where = f"grid.{f!r} = {_fmt(v)} (path {e.name!r})"
+            if keys[0] == "path":
+                pparams.update(_check_path_params(
+                    e.shape, {keys[1]: v}, "grid",
+                    lambda k: f"grid.{f!r} (path {e.name!r}, shape {e.shape!r})"))
+            else:
+                _set_dotted(raw, keys, v, where)
+            swept[f] = v
+            labels.append(f"{f}={_value_label(v)}")
+    sname = e.name + ("/" + ",".join(labels) if labels else "")
+    where = f"scenario {sname!r}"
+    cfg = _build(C.ScenarioConfig, _with_gait(raw, where), where, exclude=BASE_EXCLUDE)
+    cfg = dataclasses.replace(cfg, name=sname, seed=_derive_seed(cfg.seed, sname),
+                              path=C.PathConfig(shape=e.shape, params=pparams), swept=swept)
+    _cross_checks(cfg, where)
+    return cfg
 
 
 MAX_EXTENDS = 8   # longest chain of sweep files extending one another

@@ -3,6 +3,11 @@
 User errors must exit non-zero with one clear line naming the field and no traceback.  Runs
 use the fake closed loop of test_store.py (``HLIP_SWEEP_SIMULATE``) except one end-to-end
 run of the real H-LIP closed loop on a two-scenario, 2-second sweep (marked slow: compile).
+
+Issue 22's corpus: every file of tests/sweeps_broken/ through ``show`` (exit 2, one line
+naming the file and its ``# expect:`` fragments), plus the inputs only a run meets: an
+unusable ``--out``, a full disk, a second run into a busy directory, damaged chunks (``report``
+names them, ``--resume`` repairs them byte for byte), SIGTERM, the umask.
 """
 
 from __future__ import annotations
@@ -180,3 +185,374 @@ shape = "line"
     rows = (tmp_path / "o" / "summary.csv").read_text().splitlines()
     assert len(rows) == 3 and all(",ok," in row for row in rows[1:])
     assert (tmp_path / "o" / "figures" / "line_xy.png").is_file()
+
+
+# --------------------------------------------------------------------------------------------
+# issue 22: every broken input a one-line error with exit 2 (or 1 where documented)
+
+BROKEN_FILES = sorted(BROKEN.glob("*.toml"))
+
+
+def _one_line_error(code, err, expect_code=2):
+    assert code == expect_code, err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("hlip-sweep: error: "), err
+    return lines[0]
+
+
+@pytest.mark.parametrize("path", BROKEN_FILES, ids=lambda p: p.stem)
+def test_every_broken_file_is_rejected_by_show(path, capsys):
+    """`show` rejects what `run` would: exit 2, one line naming the file and its fields."""
+    code, out, err = cli(capsys, "show", path)
+    line = _one_line_error(code, err)
+    assert str(path) in line and out == ""
+    for frag in [ln.split("# expect:", 1)[1].strip()
+                 for ln in path.read_text(encoding="utf-8-sig").splitlines()
+                 if ln.startswith("# expect:")]:
+        assert frag in line, (frag, line)
+
+
+@pytest.mark.parametrize("name,field", [
+    ("nested_arrays_5000", "nested too deeply"),
+    ("grid_exactly_the_limit", "fewer than 10000000"),
+    ("static_horizon_swept", "mpc.horizon"),
+    ("name_dotdot", "name"),
+])
+def test_heavy_broken_inputs_in_a_process(name, field, tmp_path):
+    """Deep nesting and a grid of exactly the limit: exit 2 quickly, nothing written."""
+    r = hs("run", BROKEN / f"{name}.toml", "--out", tmp_path / "o", timeout=60)
+    line = _one_line_error(r.returncode, r.stderr)
+    assert field in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_show_of_a_million_scenarios_is_fast(tmp_path, capsys):
+    sw = tmp_path / "million.toml"
+    sw.write_text('[[paths]]\nshape = "circle"\n[grid.product]\n"seed" = [%s]\n'
+                  '"mpc.alpha" = [%s]\n' % (", ".join(map(str, range(1000))),
+                                            ", ".join(f"{i / 1000:g}" for i in range(1000))))
+    import time
+    t0 = time.monotonic()
+    code, out, _ = cli(capsys, "show", sw)
+    assert code == 0 and "= 1000000" in out and "more)" in out
+    assert time.monotonic() - t0 < 10
+
+
+def _run_ok(capsys, sw, out, *extra):
+    code, _, err = cli(capsys, "run", sw, "--out", out, "--batch", "1", "--no-report",
+                       "--quiet", *extra)
+    assert code == 0, err
+
+
+@pytest.fixture
+def tiny_sweep(tmp_path):
+    p = tmp_path / "clitiny.toml"
+    p.write_text(TINY)
+    return p
+
+
+def test_out_under_a_file(tmp_path, tiny_sweep, capsys, fake_loop):
+    (tmp_path / "afile").write_text("x")
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "afile" / "sub", "--quiet")
+    assert "--out" in _one_line_error(code, err)
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "afile", "--quiet")
+    assert "not a directory" in _one_line_error(code, err)
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes through permissions")
+def test_out_read_only(tmp_path, tiny_sweep, capsys, fake_loop):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", ro / "x", "--quiet")
+    assert "--out" in _one_line_error(code, err)
+
+
+def test_out_too_long_a_name(tmp_path, tiny_sweep, capsys, fake_loop):
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / ("d" * 300), "--quiet")
+    assert "--out" in _one_line_error(code, err) and "too long" in err
+
+
+def test_disk_full_while_writing_chunks(tmp_path, tiny_sweep, capsys, fake_loop, monkeypatch):
+    """A file-system error mid-run: exit 1 (incomplete), one line, the manifest says so."""
+    from hlip_jax import store
+    real, calls = store.save_npz_atomic, []
+
+    def full(path, arrays):
+        calls.append(path)
+        if len(calls) > 1:
+            raise OSError(28, "No space left on device", str(path))
+        real(path, arrays)
+
+    monkeypatch.setattr(store, "save_npz_atomic", full)
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o", "--batch", "1",
+                       "--quiet")
+    line = _one_line_error(code, err, expect_code=1)
+    assert "No space left on device" in line and "--resume" in line and "chunk_00001" in line
+    assert json.loads((tmp_path / "o" / "manifest.json").read_text())["status"] == "incomplete"
+    monkeypatch.setattr(store, "save_npz_atomic", real)
+    _run_ok(capsys, tiny_sweep, tmp_path / "o", "--resume")
+
+
+def test_disk_full_at_the_start(tmp_path, tiny_sweep, capsys, fake_loop, monkeypatch):
+    from hlip_jax import store
+
+    def full(out_dir, man):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(store, "_write_manifest", full)
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o", "--quiet")
+    assert "No space left" in _one_line_error(code, err)
+
+
+def test_second_concurrent_run_is_refused(tmp_path, tiny_sweep, capsys, fake_loop):
+    """While a run holds the directory, another exits 2 naming the holder and writes nothing."""
+    from hlip_jax import store
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != ".lock"}
+    with store.results_lock(out):
+        for extra in ([], ["--resume"], ["--overwrite"]):
+            code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--quiet", *extra)
+            line = _one_line_error(code, err)
+            assert f"pid {os.getpid()}" in line and "another run" in line
+        r = hs("run", tiny_sweep, "--out", out, "--overwrite", "--quiet")
+        assert f"pid {os.getpid()}" in _one_line_error(r.returncode, r.stderr)
+    after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != ".lock"}
+    assert before == after
+
+
+def test_stale_lock_is_taken_over(tmp_path, tiny_sweep, capsys, fake_loop):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / ".lock").write_text("pid 999999 on gone since 2020-01-01T00:00:00+00:00\n")
+    _run_ok(capsys, tiny_sweep, out)
+    assert f"pid {os.getpid()}" in (out / ".lock").read_text()
+
+
+def _truncate(p: Path):
+    b = p.read_bytes()
+    p.write_bytes(b[: len(b) // 2])
+
+
+def _flip(p: Path):
+    b = bytearray(p.read_bytes())
+    b[len(b) // 2] ^= 0x10
+    p.write_bytes(bytes(b))
+
+
+def _empty(p: Path):
+    p.write_bytes(b"")
+
+
+def _swap(p: Path):
+    other = p.parent / "chunk_00000.npz"
+    p.write_bytes(other.read_bytes())
+
+
+def _drop_array(p: Path):
+    import numpy as np
+    with np.load(p) as z:
+        arrays = {k: z[k] for k in z.files if k != "x_robot"}
+    np.savez(p, **arrays)
+
+
+def _short_array(p: Path):
+    import numpy as np
+    with np.load(p) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["u_robot"] = arrays["u_robot"][:, :2]
+    np.savez(p, **arrays)
+
+
+@pytest.mark.parametrize("damage,why", [
+    (_truncate, "corrupt"), (_flip, "CRC"), (_empty, "corrupt"), (_swap, "other scenarios"),
+    (_drop_array, "x_robot"), (_short_array, "u_robot"),
+])
+def test_corrupt_chunk_report_names_it_and_resume_repairs(damage, why, tmp_path, tiny_sweep,
+                                                          capsys, fake_loop):
+    ref, out = tmp_path / "ref", tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, ref)
+    _run_ok(capsys, tiny_sweep, out)
+    bad = out / "chunks" / "chunk_00002.npz"
+    damage(bad)
+    code, _, err = cli(capsys, "report", out)
+    line = _one_line_error(code, err)
+    assert "chunk_00002.npz" in line and why in line and "--resume" in line
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--batch", "1", "--no-report",
+                       "--resume")
+    assert code == 0 and "chunk_00002.npz" in err and "simulating it again" in err
+    assert "chunk_00001.npz" not in err
+    for f in sorted((ref / "chunks").iterdir()):
+        assert f.read_bytes() == (out / "chunks" / f.name).read_bytes(), f.name
+    assert (ref / "summary.csv").read_bytes() == (out / "summary.csv").read_bytes()
+    code, _, err = cli(capsys, "report", out)
+    assert code == 0, err
+
+
+@pytest.mark.parametrize("mask,mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_results_files_respect_the_umask(mask, mode, tmp_path, tiny_sweep, capsys, fake_loop):
+    old = os.umask(mask)
+    try:
+        _run_ok(capsys, tiny_sweep, tmp_path / "o")
+    finally:
+        os.umask(old)
+    for name in ("manifest.json", "summary.csv", "chunks/chunk_00000.npz"):
+        assert (tmp_path / "o" / name).stat().st_mode & 0o777 == mode, name
+
+
+def slow_simulate(configs):
+    """The fake closed loop, one second per chunk (time to send a signal)."""
+    import time
+
+    from test_store import fake_simulate
+    time.sleep(1.0)
+    return fake_simulate(configs)
+
+
+def _slow_run(sweep_file, out):
+    """Start a slow run (one second per chunk) and return once its first chunk is stored."""
+    import time
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]),
+               HLIP_SWEEP_SIMULATE="test_cli:slow_simulate", MPLBACKEND="Agg")
+    proc = subprocess.Popen([sys.executable, "-m", "hlip_jax.cli", "run", str(sweep_file), "--out",
+                             str(out), "--batch", "1", "--quiet", "--no-report"], env=env,
+                            text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while not (out / "chunks" / "chunk_00000.npz").exists() and time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    return proc
+
+
+def test_two_concurrent_runs_the_second_exits_2(tmp_path, tiny_sweep, capsys, fake_loop):
+    ref, out = tmp_path / "ref", tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, ref)
+    first = _slow_run(tiny_sweep, out)
+    r = hs("run", tiny_sweep, "--out", out, "--overwrite", "--quiet", "--batch", "1")
+    line = _one_line_error(r.returncode, r.stderr)
+    assert f"pid {first.pid}" in line
+    _, err = first.communicate(timeout=120)
+    assert first.returncode == 0, err
+    for f in sorted((ref / "chunks").iterdir()):
+        assert f.read_bytes() == (out / "chunks" / f.name).read_bytes(), f.name
+    assert json.loads((out / "manifest.json").read_text())["status"] == "complete"
+
+
+def test_sigterm_leaves_an_incomplete_run_to_resume(tmp_path, tiny_sweep):
+    import signal
+    out = tmp_path / "o"
+    proc = _slow_run(tiny_sweep, out)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143 and "SIGTERM" in err and "Traceback" not in err, err
+    assert json.loads((out / "manifest.json").read_text())["status"] == "incomplete"
+
+
+def collide_simulate(configs):
+    """The fake closed loop with every step 0.5 m inside an obstacle (a finished run that hit
+    one)."""
+    from test_store import fake_simulate
+    log = fake_simulate(configs)
+    log.clearance[...] = -0.5
+    return log
+
+
+def test_negative_clearance_is_a_collision_in_summary_and_report(tmp_path, tiny_sweep, capsys,
+                                                                monkeypatch):
+    monkeypatch.setenv("HLIP_SWEEP_SIMULATE", "test_cli:collide_simulate")
+    out = tmp_path / "o"
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--quiet")
+    assert code == 0, err
+    rows = (out / "summary.csv").read_text()
+    assert ",collision," in rows and ",ok," not in rows
+    assert "every scenario finished ok" not in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize("args,frag", [
+    (["run", "{sweep}", "--limit", "0"], "--limit"),
+    (["run", "{sweep}", "--limit", "x"], "--limit"),
+    (["run", "{sweep}", "--batch", "-1"], "--batch"),
+    (["run", "{sweep}", "--duration", "nan"], "--duration"),
+    (["run", "{sweep}", "--duration", "inf"], "--duration"),
+    (["show", "{sweep}", "--plant", "atlas"], "--plant"),
+    (["run"], "SWEEP"),
+    (["frobnicate"], "invalid choice"),
+])
+def test_command_line_mistakes(args, frag, tiny_sweep, capsys):
+    code, _, err = cli(capsys, *[a.format(sweep=tiny_sweep) for a in args])
+    assert code == 2 and frag in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("setup,frag", [
+    ("file", "results directory not found"),
+    ("empty", "not a results directory"),
+    ("bad_manifest", "unreadable manifest"),
+])
+def test_report_on_a_non_results_directory(setup, frag, tmp_path, capsys):
+    d = tmp_path / "d"
+    if setup == "file":
+        d.write_text("x")
+    else:
+        d.mkdir()
+    if setup == "bad_manifest":
+        (d / "manifest.json").write_text("{not json")
+    code, _, err = cli(capsys, "report", d)
+    assert frag in _one_line_error(code, err)
+
+
+def test_resume_and_overwrite_together(tmp_path, tiny_sweep, capsys, fake_loop):
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o", "--resume",
+                       "--overwrite")
+    assert "exclude each other" in _one_line_error(code, err)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_two_process_distributed_run_equals_one_process(tmp_path):
+    """`--distributed` with two processes on this host (one CPU device each, jax.distributed
+    through JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES / JAX_PROCESS_ID) writes the same
+    chunks and summary as one process (the real H-LIP closed loop, 4 scenarios of 2 s)."""
+    import socket
+    sw = tmp_path / "dist.toml"
+    sw.write_text('[base]\nduration = 2.0\n[[paths]]\nshape = "line"\n[grid.product]\n'
+                  '"gain.type" = ["deadbeat", "lqr"]\n"mpc.alpha" = [0.01, 0.1]\n')
+    one = hs("run", sw, "--out", tmp_path / "one", "--no-report", "--quiet", fake=False)
+    assert one.returncode == 0, one.stderr
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COORDINATOR_ADDRESS=f"localhost:{port}",
+               JAX_NUM_PROCESSES="2", MPLBACKEND="Agg")
+    env.pop("HLIP_SWEEP_SIMULATE", None)
+    cmd = [sys.executable, "-m", "hlip_jax.cli", "run", str(sw), "--out", str(tmp_path / "two"),
+           "--no-report", "--quiet", "--distributed"]
+    procs = [subprocess.Popen(cmd, env=dict(env, JAX_PROCESS_ID=str(i)), cwd=ROOT, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE) for i in (0, 1)]
+    for p in procs:
+        _, err = p.communicate(timeout=500)
+        assert p.returncode == 0, err
+    for f in sorted((tmp_path / "one" / "chunks").iterdir()):
+        assert f.read_bytes() == (tmp_path / "two" / "chunks" / f.name).read_bytes(), f.name
+    assert ((tmp_path / "one" / "summary.csv").read_bytes()
+            == (tmp_path / "two" / "summary.csv").read_bytes())
+
+
+def test_distributed_process_id_must_be_an_integer(tmp_path, tiny_sweep, capsys, fake_loop,
+                                                   monkeypatch):
+    monkeypatch.setenv("JAX_PROCESS_ID", "first")
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o", "--distributed")
+    assert "JAX_PROCESS_ID" in _one_line_error(code, err)
+
+
+@pytest.mark.parametrize("args,frag", [
+    (["ticks", "{out}", "99"], "SCENARIO"),
+    (["ticks", "{out}", "no-such-scenario"], "SCENARIO"),
+    (["report", "{out}", "--heatmap", "nope", "path"], "nope"),
+])
+def test_mistakes_on_a_results_directory(args, frag, tmp_path, tiny_sweep, capsys, fake_loop):
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    code, _, err = cli(capsys, *[a.format(out=out) for a in args])
+    assert frag in _one_line_error(code, err)

@@ -27,7 +27,7 @@ def _expects(path: Path) -> list[str]:
 
 
 def test_corpus_is_large_enough():
-    assert len(BROKEN) >= 30
+    assert len(BROKEN) >= 150
     assert all(_expects(p) for p in BROKEN), "every broken file states its expected message"
 
 
@@ -69,8 +69,13 @@ def test_paper_sweep_runs_on_cassie():
     assert (p.force, p.duration, p.time, p.direction) == (200.0, 0.1, 10.0, 90.0)
 
 
+@pytest.mark.parametrize("eager", [True, False], ids=["eager", "counted"])
 @pytest.mark.parametrize("path", BROKEN, ids=lambda p: p.stem)
-def test_broken_sweep_fails_with_its_message(path):
+def test_broken_sweep_fails_with_its_message(path, eager, monkeypatch):
+    """Each broken file fails with its message, whether the grid is expanded scenario by
+    scenario (small grids) or counted and validated on a covering subset (large grids)."""
+    if not eager:
+        monkeypatch.setattr(sweep, "EAGER_SCENARIOS", 0)
     with pytest.raises(sweep.SweepError) as ei:
         sweep.load_sweep(path)
     msg = str(ei.value)
@@ -97,6 +102,7 @@ duration = 5.0
 seed = 7
 [[base.disturbance.pushes]]
 force = 50.0
+time = 2.0
 [[paths]]
 shape = "circle"
 radius = 2
@@ -264,3 +270,42 @@ def test_shipped_replicates_extend_the_paper():
         assert c.disturbance.noise_v == 0.02 and c.disturbance.pushes == ref.disturbance.pushes
         assert c.path == ref.path and c.hlip == ref.hlip and c.mpc == ref.mpc and c.gain == ref.gain
         assert c.cassie == ref.cassie and c.obstacles == ref.obstacles
+
+
+def test_large_grids_are_counted_then_built_on_demand(monkeypatch):
+    """Above EAGER_SCENARIOS the scenarios are built on first use, equal to the eager ones."""
+    eager = sweep.parse_sweep(GRID, limit=17)
+    monkeypatch.setattr(sweep, "EAGER_SCENARIOS", 0)
+    lazy = sweep.parse_sweep(GRID, limit=17)
+    assert "scenarios" not in vars(lazy), "not built by parsing"
+    assert lazy.n_scenarios == eager.n_scenarios == 17 and lazy.total == eager.total
+    assert lazy.scenarios == eager.scenarios
+
+
+def test_validation_points_cover_every_value_and_every_interacting_combination():
+    axes = sweep._parse_axes({"product": {"mpc.alpha": [0.1, 0.2, 0.3], "seed": [1, 2],
+                                          "duration": [5.0, 6.0], "hlip.t_ssp": [0.3, 0.4]}})
+    pts = [tuple(v[0] for v in p) for p in sweep._validation_points(axes)]
+    assert {(p[2], p[3]) for p in pts} == {(5.0, 0.3), (5.0, 0.4), (6.0, 0.3), (6.0, 0.4)}
+    assert {p[0] for p in pts} == {0.1, 0.2, 0.3} and {p[1] for p in pts} == {1, 2}
+    assert len(pts) == 4 + 2 + 1, "independent axes are not multiplied out"
+
+
+@pytest.mark.parametrize("n,ok", [(11, True), (12, False)])
+def test_the_scenario_limit_is_exclusive(n, ok, monkeypatch):
+    """MAX_SCENARIOS is the first grid size refused; the count needs no expansion."""
+    monkeypatch.setattr(sweep, "MAX_SCENARIOS", 12)
+    text = ('[[paths]]\nshape = "circle"\n[grid.product]\n"seed" = [%s]\n'
+            % ", ".join(map(str, range(n))))
+    if ok:
+        assert sweep.parse_sweep(text).total == 11
+    else:
+        with pytest.raises(sweep.SweepError, match="12 scenarios.*fewer than 12"):
+            sweep.parse_sweep(text)
+
+
+def test_path_names_and_slugs():
+    assert sweep.file_slug("a b") == sweep.file_slug("a_b") == "a_b"
+    from hlip_jax import report
+    for name in ("a b", "x+y", "run.", "circle-2", "_z_"):
+        assert sweep.file_slug(name) == report._slug(name), "the report's figure names"
