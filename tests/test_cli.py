@@ -220,11 +220,16 @@ def test_every_broken_file_is_rejected_by_show(path, capsys):
     ("name_dotdot", "name"),
 ])
 def test_heavy_broken_inputs_in_a_process(name, field, tmp_path):
-    """Deep nesting and a grid of exactly the limit: exit 2 quickly, nothing written."""
+    """Deep nesting and a grid of exactly the limit: exit 2 within 60 s and under 2 GiB of
+    resident memory (the largest of every child this test process has waited for, so the bound
+    holds for this one too; importing JAX alone takes a few hundred MiB), nothing written."""
+    import resource
     r = hs("run", BROKEN / f"{name}.toml", "--out", tmp_path / "o", timeout=60)
     line = _one_line_error(r.returncode, r.stderr)
     assert field in line
     assert not (tmp_path / "o").exists()
+    peak_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    assert peak_kib < 2 * 2 ** 20, f"peak RSS {peak_kib / 2 ** 20:.2f} GiB"
 
 
 def test_show_of_a_million_scenarios_is_fast(tmp_path, capsys):
