@@ -507,14 +507,9 @@ def _representatives(man, rows):
     return reps
 
 
-def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Path, Path]:
-    """Write ``report.html``, ``report.md`` and ``figures/`` for a results directory;
-    ``heatmap_axes``: the two swept dimensions of the grid maps (default: the first two).
-
-    Returns (html path, markdown path).  Raises :class:`ReportError` if the directory is not a
-    complete results directory.
-    """
-    out = Path(out_dir)
+def _read_results(out: Path, heatmap_axes) -> tuple[dict, list[dict]]:
+    """The manifest and summary rows of a complete results directory (writes summary.csv if a
+    complete run lacks it); :class:`ReportError` otherwise."""
     try:
         man = store.read_manifest(out)
     except store.StoreError as err:
@@ -527,12 +522,11 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
             raise ReportError(f"{out}: the run is incomplete; finish it with `hlip-sweep run "
                               f"... --resume` first")
         store.write_summary(out)
-    rows = store.read_summary(out)
-    fig_dir = out / "figures"
-    fig_dir.mkdir(exist_ok=True)
-    cfgs = man["configs"]
+    return man, store.read_summary(out)
 
-    doc = _Doc()
+
+def _header_section(doc: "_Doc", man: dict, rows: list[dict], out: Path) -> str:
+    """Title, description and the run's facts table; returns the title."""
     title = f"hlip_jax sweep report: {man.get('sweep_name', out.name)}"
     doc.h(1, title)
     if man.get("description"):
@@ -557,68 +551,78 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
         ["simulation time", f"{man.get('seconds', math.nan):.1f} s"],
     ])
 
-    across_run_section(doc, out)
+    return title
 
-    reps = _representatives(man, rows)
-    cov_summary = []
-    for pname, (rep, members_rows) in reps.items():
-        idx = int(rep["index"])
-        cfg = cfgs[idx]
-        slug = _slug(pname)
-        doc.h(2, f"Path: {pname}")
-        params = ", ".join(f"{k}={v}" for k, v in cfg["path"]["params"].items())
-        doc.p(f"shape {cfg['path']['shape']} ({params or 'defaults'}); "
-              f"{len(members_rows)} scenario(s); figures show scenario #{idx} "
-              f"'{cfg['name']}' (status {rep['status']}).")
-        member_ids = [int(r["index"]) for r in members_rows]
-        log = store.load_log(out, member_ids)
-        pos = {int(i): j for j, i in enumerate(log["index"])}
-        one = {k: v[pos[idx]:pos[idx] + 1] for k, v in log.items()}
-        label = f"{pname}: {cfg['name']}"
-        fig_xy(one, cfg, fig_dir / f"{slug}_xy.png", label)
-        doc.img(f"figures/{slug}_xy.png", f"{pname} x-y plane")
-        fig_time(one, fig_dir / f"{slug}_time.png", label)
-        doc.img(f"figures/{slug}_time.png", f"{pname} position and velocity")
-        fig_steps(one, fig_dir / f"{slug}_steps.png", label)
-        doc.img(f"figures/{slug}_steps.png", f"{pname} step sizes")
 
-        # runs of this path with the representative's S2S model and gain
-        A0, B0, K0 = _plane_mats(log, pos[idx])
-        same = [pos[i] for i in member_ids
-                if all(np.allclose(x, y) for x, y in zip(_plane_mats(log, pos[i]), (A0, B0, K0)))
-                and bool(np.asarray(log["valid"][pos[i]]).any())]
-        doc.h(3, "Error invariant sets and coverage")
-        try:
-            frame = store.analysis_frame(log, same[0])
-            an = invariant_analysis(log, same)
-            fig_invariant(an, log, same, fig_dir / f"{slug}_invariant.png", pname)
-            doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")
-            doc.p(f"W and E from {len(same)} run(s) sharing the gain of scenario #{idx}; "
-                  "E is the mRPI set of e⁺ = (A + BK) e + d (Raković et al. 2005) on "
-                  f"{'[c, p, v]' if an.planes[0].E.dim == 3 else '[p, v]'}, "
-                  "W the box of d = w + B δu (the S2S disturbance w plus the foot-placement "
-                  "error δu, executed step minus the law's step"
-                  + _placement_note(rep) + "), "
-                  "coverage = fraction of observed errors inside E (bracket inner F_s – outer "
-                  "F_s/(1−α)); held-out: " + ("W from half of the runs, coverage on the others."
-                                               if len(same) >= 2 else
-                                               "W from the first half of the steps, coverage "
-                                               "of the errors in the second half.")
-                  + (" Planes: sagittal along the path heading θ_d(t_k), lateral to its left "
-                     "(errors and disturbances rotated into that frame at every step)."
-                     if frame == "heading" else
-                     " Planes: world x and y (the gain differs between the planes, which a "
-                     "rotation into the heading frame would not respect)."))
-            doc.table(COVERAGE_HEAD, _coverage_rows(an, len(same), rep, frame))
-            for p, plane in enumerate(plane_names(frame)):
-                pa = an.planes[p]
-                cov_summary.append([pname, plane, len(same), _fmt(pa.coverage.inner),
-                                    _fmt(pa.coverage.outer),
-                                    _fmt(pa.heldout.outer) if pa.heldout else
-                                    _fmt(rep.get(f"cov_{'xy'[p]}_heldout", math.nan))])
-        except Exception as err:   # unstable gain, too few samples: say so, keep going
-            doc.p(f"invariant analysis not available for this path: {type(err).__name__}: {err}")
+def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
+                  members_rows: list[dict], fig_dir: Path) -> list[list]:
+    """One path: its figures, its invariant sets and coverage tables; returns its rows of the
+    coverage summary."""
+    cfgs = man["configs"]
+    cov_summary: list[list] = []
+    idx = int(rep["index"])
+    cfg = cfgs[idx]
+    slug = _slug(pname)
+    doc.h(2, f"Path: {pname}")
+    params = ", ".join(f"{k}={v}" for k, v in cfg["path"]["params"].items())
+    doc.p(f"shape {cfg['path']['shape']} ({params or 'defaults'}); "
+          f"{len(members_rows)} scenario(s); figures show scenario #{idx} "
+          f"'{cfg['name']}' (status {rep['status']}).")
+    member_ids = [int(r["index"]) for r in members_rows]
+    log = store.load_log(out, member_ids)
+    pos = {int(i): j for j, i in enumerate(log["index"])}
+    one = {k: v[pos[idx]:pos[idx] + 1] for k, v in log.items()}
+    label = f"{pname}: {cfg['name']}"
+    fig_xy(one, cfg, fig_dir / f"{slug}_xy.png", label)
+    doc.img(f"figures/{slug}_xy.png", f"{pname} x-y plane")
+    fig_time(one, fig_dir / f"{slug}_time.png", label)
+    doc.img(f"figures/{slug}_time.png", f"{pname} position and velocity")
+    fig_steps(one, fig_dir / f"{slug}_steps.png", label)
+    doc.img(f"figures/{slug}_steps.png", f"{pname} step sizes")
 
+    # runs of this path with the representative's S2S model and gain
+    A0, B0, K0 = _plane_mats(log, pos[idx])
+    same = [pos[i] for i in member_ids
+            if all(np.allclose(x, y) for x, y in zip(_plane_mats(log, pos[i]), (A0, B0, K0)))
+            and bool(np.asarray(log["valid"][pos[i]]).any())]
+    doc.h(3, "Error invariant sets and coverage")
+    try:
+        frame = store.analysis_frame(log, same[0])
+        an = invariant_analysis(log, same)
+        fig_invariant(an, log, same, fig_dir / f"{slug}_invariant.png", pname)
+        doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")
+        doc.p(f"W and E from {len(same)} run(s) sharing the gain of scenario #{idx}; "
+              "E is the mRPI set of e⁺ = (A + BK) e + d (Raković et al. 2005) on "
+              f"{'[c, p, v]' if an.planes[0].E.dim == 3 else '[p, v]'}, "
+              "W the box of d = w + B δu (the S2S disturbance w plus the foot-placement "
+              "error δu, executed step minus the law's step"
+              + _placement_note(rep) + "), "
+              "coverage = fraction of observed errors inside E (bracket inner F_s – outer "
+              "F_s/(1−α)); held-out: " + ("W from half of the runs, coverage on the others."
+                                           if len(same) >= 2 else
+                                           "W from the first half of the steps, coverage "
+                                           "of the errors in the second half.")
+              + (" Planes: sagittal along the path heading θ_d(t_k), lateral to its left "
+                 "(errors and disturbances rotated into that frame at every step)."
+                 if frame == "heading" else
+                 " Planes: world x and y (the gain differs between the planes, which a "
+                 "rotation into the heading frame would not respect)."))
+        doc.table(COVERAGE_HEAD, _coverage_rows(an, len(same), rep, frame))
+        for p, plane in enumerate(plane_names(frame)):
+            pa = an.planes[p]
+            cov_summary.append([pname, plane, len(same), _fmt(pa.coverage.inner),
+                                _fmt(pa.coverage.outer),
+                                _fmt(pa.heldout.outer) if pa.heldout else
+                                _fmt(rep.get(f"cov_{'xy'[p]}_heldout", math.nan))])
+    except Exception as err:   # unstable gain, too few samples: say so, keep going
+        doc.p(f"invariant analysis not available for this path: {type(err).__name__}: {err}")
+
+    return cov_summary
+
+
+def _closing_sections(doc: "_Doc", man: dict, rows: list[dict], fig_dir: Path, heatmap_axes,
+                      cov_summary: list[list]) -> None:
+    """Coverage summary, grid maps, failures, pushes and the per-scenario table."""
     if cov_summary:
         doc.h(2, "Coverage summary")
         doc.p("Per path, all runs sharing the representative's gain; the across-run "
@@ -664,6 +668,26 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
     if len(rows) > MAX_TABLE_ROWS:
         doc.p(f"… {len(rows) - MAX_TABLE_ROWS} more rows in summary.csv")
 
+
+
+def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Path, Path]:
+    """Write ``report.html``, ``report.md`` and ``figures/`` for a results directory;
+    ``heatmap_axes``: the two swept dimensions of the grid maps (default: the first two).
+
+    Returns (html path, markdown path).  Raises :class:`ReportError` if the directory is not a
+    complete results directory.
+    """
+    out = Path(out_dir)
+    man, rows = _read_results(out, heatmap_axes)
+    fig_dir = out / "figures"
+    fig_dir.mkdir(exist_ok=True)
+    doc = _Doc()
+    title = _header_section(doc, man, rows, out)
+    across_run_section(doc, out)
+    cov_summary = []
+    for pname, (rep, members_rows) in _representatives(man, rows).items():
+        cov_summary += _path_section(doc, out, man, pname, rep, members_rows, fig_dir)
+    _closing_sections(doc, man, rows, fig_dir, heatmap_axes, cov_summary)
     html_p, md_p = out / "report.html", out / "report.md"
     store.write_atomic(html_p, doc.html(title, out))
     store.write_atomic(md_p, doc.markdown())
