@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import json
 import os
 import signal
 import sys
@@ -148,6 +149,17 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the two swept dimensions of the grid heat maps (a grid field such as "
                     "disturbance.pushes.0.time, or 'path'); default: the first two axes")
 
+    cv = sub.add_parser("coverage", help="(re)compute the across-run coverage of a results "
+                        "directory", description="Write DIR/coverage.csv: W from the training "
+                        "runs, E's coverage of the test runs' errors with 95 %% intervals "
+                        "(hlip_jax.coverage), and print it; `report` then shows this split.")
+    cv.add_argument("dir", metavar="DIR")
+    cv.add_argument("--q", type=float, default=None, metavar="Q",
+                    help="level of the split-conformal quantile box W, in (0, 1) (default 0.9)")
+    cv.add_argument("--train-on", default=None, metavar="FIELD=V1,V2",
+                    help="W from the runs whose swept FIELD (a grid field or 'path') is one of "
+                    "the values, coverage on the others (default: half of the replicate seeds)")
+
     tk = sub.add_parser("ticks", help="per-tick diagnostics of one Cassie scenario of a results "
                         "directory", description="Re-simulate one scenario of DIR alone with the "
                         "controller's 1 kHz log and write DIR/ticks/INDEX.npz and INDEX.png "
@@ -266,6 +278,41 @@ def cmd_report(args) -> int:
     return EXIT_OK
 
 
+def _train_on(text: str | None):
+    """``FIELD=V1,V2`` → (FIELD, [values]) with numbers parsed as JSON, the rest as strings."""
+    if text is None:
+        return None
+    field, sep, vals = text.partition("=")
+    if not sep or not field.strip() or not vals.strip():
+        raise UserError(f"--train-on: expected FIELD=V1[,V2...], e.g. path=circle or seed=1,2; "
+                        f"got {text!r}")
+
+    def value(v: str):
+        try:
+            return json.loads(v)
+        except ValueError:
+            return v
+
+    return field.strip(), [value(v.strip()) for v in vals.split(",")]
+
+
+def cmd_coverage(args) -> int:
+    from hlip_jax import store
+    d = Path(args.dir)
+    if not d.is_dir():
+        raise UserError(f"{d}: results directory not found")
+    q = store.COVERAGE_Q if args.q is None else args.q
+    if not 0.0 < q < 1.0:
+        raise UserError(f"--q: expected a level in (0, 1), got {q}")
+    store.check_chunks(d)
+    path = store.write_coverage(d, q, _train_on(args.train_on))
+    for r in store.read_coverage(d):
+        print(f"{r['group']:<32} {r['plane']:<9} {r['w_method']:<14} {r['split']:<12} "
+              f"coverage {r['coverage']} [{r['ci_low']}, {r['ci_high']}] of {r['test_samples']}")
+    print(f"coverage: {path}")
+    return EXIT_OK
+
+
 def cmd_ticks(args) -> int:
     from hlip_jax import store, tick_report
     d = Path(args.dir)
@@ -336,7 +383,7 @@ def main(argv=None) -> int:
 
     args = build_parser().parse_args(argv)
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
-               "bench": cmd_bench, "ticks": cmd_ticks}[args.cmd]
+               "bench": cmd_bench, "ticks": cmd_ticks, "coverage": cmd_coverage}[args.cmd]
     try:
         with _sigterm_unwinds():
             return handler(args)

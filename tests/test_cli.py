@@ -12,6 +12,7 @@ names them, ``--resume`` repairs them byte for byte), SIGTERM, the umask.
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import subprocess
@@ -565,3 +566,21 @@ def test_mistakes_on_a_results_directory(args, frag, tmp_path, tiny_sweep, capsy
     _run_ok(capsys, tiny_sweep, out)
     code, _, err = cli(capsys, *[a.format(out=out) for a in args])
     assert frag in _one_line_error(code, err)
+
+
+def test_coverage_command(tmp_path, tiny_sweep, capsys, fake_loop):
+    """`hlip-sweep coverage DIR` rewrites coverage.csv with the asked split and level; bad
+    levels, malformed or unknown --train-on fields exit 2 with one line naming the option."""
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    code, text, _ = cli(capsys, "coverage", out, "--train-on", "path=circle", "--q", "0.8")
+    assert code == 0 and "coverage:" in text
+    rows = list(csv.DictReader((out / "coverage.csv").open()))
+    assert rows and all(r["split"] == "path in ['circle']" for r in rows)
+    assert {float(r["q"]) for r in rows if r["w_method"] == "quantile"} == {0.8}
+    for args, field in ((["--q", "1.0"], "--q"), (["--train-on", "path"], "--train-on"),
+                        (["--train-on", "nofield=1"], "nofield")):
+        code, _, err = cli(capsys, "coverage", out, *args)
+        assert code == 2 and field in err and "Traceback" not in err
+    code, _, err = cli(capsys, "coverage", tmp_path / "missing")
+    assert code == 2 and "not found" in err
