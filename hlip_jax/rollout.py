@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import hlip, mpc, paths, qp
+from hlip_jax import hlip, mpc, paths, progress, qp
 from hlip_jax.config import ScenarioConfig
 from hlip_jax.plants import hlip_plant
 from hlip_jax.plants.base import StepCommand
@@ -62,6 +62,7 @@ class Static(NamedTuple):
     plant: str
     plant_settings: Optional[qp.Settings] = None   # the Cassie CLF-QP's ADMM settings
     keep_ticks: bool = False                       # also return the plant's per-tick log
+    progress: bool = False                         # report each finished step (progress.py)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -354,7 +355,13 @@ def simulate_one(scn: Scenario, static: Static):
 
     carry0 = Carry(x_h=scn.x0, u_h=u_h0, x_r=scn.x0, u_r=u_r0, plan=plan0, pstate=pstate,
                    alive=jnp.bool_(True), qp_ok=ok0, t_plant=jnp.zeros((), dt))
-    final, out = jax.lax.scan(body, carry0, jnp.arange(static.n_steps))
+    def body_with_news(carry, k):
+        nxt, out = body(carry, k)
+        jax.debug.callback(functools.partial(progress.step_done, n_steps=static.n_steps), k)
+        return nxt, out
+
+    final, out = jax.lax.scan(body_with_news if static.progress else body, carry0,
+                              jnp.arange(static.n_steps))
     failed_steps = out.pop("failed_now")
     nonfinite = out.pop("nonfinite")
     qp_failed = out.pop("qp_failed")
@@ -431,7 +438,8 @@ def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to
     the whole sweep) fixes the array sizes, so chunks of a sweep share one compile; padding
     is dropped from the Log.  With several devices (``devices``, default all of
     ``jax.devices()``) the batch is padded to a multiple of their number and sharded over
-    them along the scenario axis (:func:`scenario_sharding`)."""
+    them along the scenario axis (:func:`scenario_sharding`).  While someone listens
+    (:func:`hlip_jax.progress.listening`) every finished walking step is reported."""
     configs = list(configs)
     S = len(configs)
     devices = jax.devices() if devices is None else list(devices)
@@ -443,7 +451,7 @@ def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to
     if len(devices) > 1:
         batch = place(batch, scenario_sharding(devices))
     with jax.default_matmul_precision("highest"):
-        out = run(batch, static)
+        out = run(batch, static._replace(progress=progress.active()))
     out = jax.tree.map(lambda a: _to_host(a)[:S], out)
     valid = out["valid"]
     valid_w = valid & np.concatenate([valid[:, 1:], np.zeros((S, 1), bool)], axis=1)  # k, k+1

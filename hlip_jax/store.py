@@ -92,7 +92,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from hlip_jax import steplog
+from hlip_jax import progress, steplog
 from hlip_jax import sweep as sweep_mod
 
 __all__ = [
@@ -1001,6 +1001,19 @@ def _first_push(cfg) -> float | None:
     return min(p.time for p in pushes) if pushes else None
 
 
+def _step_news(bar, done: int, chunk: int, n_chunks: int, every: float = 5.0):
+    """A :mod:`hlip_jax.progress` listener: the walking step reached inside the running chunk,
+    on the progress line at most every ``every`` seconds."""
+    last = [-math.inf]
+
+    def hear(k: int, n_steps: int) -> None:
+        now = time.monotonic()
+        if now - last[0] >= every or k == n_steps:
+            last[0] = now
+            bar.update(done, f"chunk {chunk + 1}/{n_chunks}: step {k}/{n_steps}")
+    return hear
+
+
 def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, good):
     """Simulate and store every chunk not in ``good`` (verified stored chunk indices, which
     grows as chunks are written); returns (chunks run, chunks skipped, scenarios done)."""
@@ -1014,7 +1027,8 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
             break
         chunk_cfgs = configs[a:b] + [configs[b - 1]] * (batch - (b - a))
         try:
-            log = sim(chunk_cfgs)
+            with progress.listening(_step_news(bar, done, i, len(ranges))):
+                log = sim(chunk_cfgs)
         except (ImportError, NotImplementedError) as err:
             plants = sorted({c.plant for c in chunk_cfgs})
             raise StoreError(f"the closed loop for plant {', '.join(plants)} is not available: "

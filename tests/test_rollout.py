@@ -206,3 +206,21 @@ def test_stepping_gain_per_plane():
     A, B = (np.asarray(a, np.float64) for a in hlip.s2s_matrices(0.85, 0.26, 0.02))
     assert np.abs(np.linalg.eigvals(A + np.outer(B, K1[1]))).max() < 1e-4
     assert np.abs(np.linalg.eigvals(A + np.outer(B, K1[0]))).max() > 0.1     # LQR: not deadbeat
+
+
+def test_progress_news_from_inside_the_loop():
+    """While a listener is registered every walking step of the chunk is reported once (the
+    callback's argument is the unbatched step index), and the log is bit-identical to a run
+    without a listener (the news only reads the step index)."""
+    from hlip_jax import progress
+    cfgs = [ScenarioConfig(path=PathConfig(shape="circle", params=dict(peak_speed=v)),
+                           duration=4.0) for v in (0.3, 0.6)]
+    heard = []
+    with progress.listening(lambda k, n: heard.append((k, n))):
+        loud = rollout.simulate(cfgs)
+    assert not progress.active()
+    quiet = rollout.simulate(cfgs)
+    K = loud.t.shape[1]
+    assert sorted(heard) == [(k, K) for k in range(1, K + 1)]
+    for f in steplog.FIELDS:
+        np.testing.assert_array_equal(getattr(loud, f), getattr(quiet, f), err_msg=f)
