@@ -18,7 +18,6 @@ import argparse
 
 import numpy as np
 
-from hlip_jax import hlip
 from hlip_jax.plants.cassie import gaits, orbits, outputs
 
 
@@ -34,7 +33,6 @@ def main() -> None:
     n, B = args.steps, len(args.speeds)
     log, _ = orbits.walk_orbits(args.speeds, [0.0] * B, [0.0] * B, n, z0=z0, t_ssp=ts, t_dsp=td,
                                 width=0.2, gain=np.tile(k, (2, 1)))
-    A, Bm = (np.asarray(a) for a in hlip.s2s_matrices(z0, ts, td))
     print(f"H-LIP period T = {ts + td:.4f} s; profile touchdown T_DSP + s* T_SSP = "
           f"{td + s_star * ts:.4f} s (s* = {s_star:.4f}); gain K = {np.round(k, 4)}")
     for i, v in enumerate(args.speeds):
@@ -44,7 +42,7 @@ def main() -> None:
             xr, xh = log.x_robot[i, j, 0], log.x_hlip[i, j, 0]
             law = log.u_hlip[i, j, 0] + k @ (xr - xh)
             u = log.u_robot[i, j, 0]
-            w = log.x_robot[i, j + 1, 0] - (A @ xr + Bm * u)
+            w = log.w[i, j - 1, 0]          # walk_orbits' residual of step j (from step 1 on)
             dur = log.time[i, j + 1] - log.time[i, j]
             excess.append(u - law)
             print(f" {j:4d}  {dur:11.3f}  {u:6.3f}  {law:9.3f}  {np.round(w, 3)}")

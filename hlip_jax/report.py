@@ -36,7 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
-from hlip_jax import steplog, store
+from hlip_jax import steplog, store, sweep
 
 __all__ = ["ReportError", "write_report", "FIGURE_KINDS"]
 
@@ -54,11 +54,6 @@ def _plt():
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
     return plt
-
-
-def _slug(s: str) -> str:
-    out = "".join(c if c.isalnum() or c in "-_" else "_" for c in s)
-    return out.strip("_") or "x"
 
 
 def _fmt(v, digits=4) -> str:
@@ -562,7 +557,7 @@ def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
     cov_summary: list[list] = []
     idx = int(rep["index"])
     cfg = cfgs[idx]
-    slug = _slug(pname)
+    slug = sweep.file_slug(pname)
     doc.h(2, f"Path: {pname}")
     params = ", ".join(f"{k}={v}" for k, v in cfg["path"]["params"].items())
     doc.p(f"shape {cfg['path']['shape']} ({params or 'defaults'}); "

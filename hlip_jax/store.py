@@ -250,14 +250,24 @@ def chunk_files(out_dir) -> list[Path]:
 _CORRUPT = (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error)
 
 
+def _read_npz(path) -> dict[str, np.ndarray]:
+    """Every array of an .npz file, read in full (so every CRC-32 is checked); raises one of
+    :data:`_CORRUPT` if it cannot."""
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _corrupt_text(err: BaseException) -> str:
+    return f"corrupt or unreadable chunk ({type(err).__name__}: {err})"
+
+
 def load_chunk(path) -> dict[str, np.ndarray]:
     """Every array of a chunk file, read in full; StoreError naming the file if it is
     unreadable, truncated or fails a CRC check."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+        return _read_npz(path)
     except _CORRUPT as err:
-        raise StoreError(f"{path}: corrupt or unreadable chunk ({type(err).__name__}: {err}); "
+        raise StoreError(f"{path}: {_corrupt_text(err)}; "
                          f"`hlip-sweep run SWEEP --out DIR --resume` simulates it again") from None
 
 
@@ -270,9 +280,9 @@ def chunk_problem(path, start: int, stop: int) -> str | None:
     if not path.is_file():
         return "missing"
     try:
-        z = load_chunk(path)
-    except StoreError as err:
-        return str(err).split(": ", 1)[1].split("; ", 1)[0]
+        z = _read_npz(path)
+    except _CORRUPT as err:
+        return _corrupt_text(err)
     missing = [k for k in (*LOG_FIELDS, "index") if k not in z]
     if missing:
         return f"lacks the array(s) {', '.join(missing)}"
@@ -631,11 +641,10 @@ COVERAGE_Q = 0.9
 def _push_masks(t: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray]:
     """(dpush (K−1,), epush (K,)) of a run with pre-impact plant times ``t`` (K,) [s]: steps
     whose interval [t_k, t_{k+1}] overlaps a push, and errors at or after the first push."""
-    pushes = [(p.time, p.time + p.duration) for p in cfg.disturbance.pushes
-              if p.force > 0 and p.duration > 0]
+    pushes = _active_pushes(cfg)
     dpush = np.zeros(t.size - 1, bool)
-    for a, b in pushes:
-        dpush |= (t[:-1] <= b) & (t[1:] >= a)
+    for p in pushes:
+        dpush |= (t[:-1] <= p.time + p.duration) & (t[1:] >= p.time)
     first = _first_push(cfg)
     epush = t >= first - 1e-9 if first is not None else np.zeros(t.size, bool)
     return dpush, epush
@@ -898,7 +907,7 @@ def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, 
     if old is not None and overwrite and not resume:
         for f in chunk_files(out):
             f.unlink()
-        for name in (SUMMARY, MANIFEST):
+        for name in (SUMMARY, COVERAGE, MANIFEST):
             (out / name).unlink(missing_ok=True)
         return None
     return old if resume else None
@@ -996,8 +1005,13 @@ def _verify_stored(out: Path, ranges, bar) -> set[int]:
     return good
 
 
+def _active_pushes(cfg) -> list:
+    """The scenario's pushes that act (positive force and duration)."""
+    return [p for p in cfg.disturbance.pushes if p.force > 0 and p.duration > 0]
+
+
 def _first_push(cfg) -> float | None:
-    pushes = [p for p in cfg.disturbance.pushes if p.force > 0 and p.duration > 0]
+    pushes = _active_pushes(cfg)
     return min(p.time for p in pushes) if pushes else None
 
 

@@ -702,7 +702,7 @@ def _check_name(value, where: str, max_len: int, origin: str = "") -> str:
 
 
 def file_slug(name: str) -> str:
-    """The file-name slug of a path name in the report's figures (``report._slug``)."""
+    """The file-name slug of a path name: the report names its figures with it."""
     out = "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
     return out.strip("_") or "x"
 
