@@ -51,6 +51,17 @@ class MPCConfig:
     obstacle_weight: float = spec(1e3, 0.0, 1e9, "exact-penalty weight on obstacle slack", "1/m")
     mode: str = spec("tube", doc="plan from the H-LIP's own state (tube) or the robot's",
                      choices=("tube", "measured"))
+    robust: bool = spec(False, doc="tube MPC: tighten step limits by K E and keep-out discs by E, "
+                        "E = mRPI(A + B K, W) of the W box below (hlip_jax.robust)",
+                        choices=(True, False))
+    w_frame: str = spec("heading", doc="frame of the W box: plane 1/2 = sagittal/lateral ('heading') "
+                        "or world x/y ('world')", choices=("heading", "world"))
+    w_c_1: float = spec(0.0, 0.0, 1.0, "W half-width on c, plane 1 (robust only)", "m")
+    w_p_1: float = spec(0.0, 0.0, 1.0, "W half-width on p, plane 1 (robust only)", "m")
+    w_v_1: float = spec(0.0, 0.0, 5.0, "W half-width on v, plane 1 (robust only)", "m/s")
+    w_c_2: float = spec(0.0, 0.0, 1.0, "W half-width on c, plane 2 (robust only)", "m")
+    w_p_2: float = spec(0.0, 0.0, 1.0, "W half-width on p, plane 2 (robust only)", "m")
+    w_v_2: float = spec(0.0, 0.0, 5.0, "W half-width on v, plane 2 (robust only)", "m/s")
     qp_max_iter: int = spec(400, 10, 100000, "ADMM iteration cap per MPC solve")
     qp_eps: float = spec(1e-4, 1e-10, 1e-1, "ADMM absolute/relative tolerance")
 

@@ -30,7 +30,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from hlip_jax import qp
+from hlip_jax import qp, robust
 
 BIG = 1e20  # OSQP's convention: |bound| ≥ 1e20 is infinite
 
@@ -49,6 +49,9 @@ class MPCParams(NamedTuple):
     obstacle_weight: jax.Array  # exact-penalty weight on slack [1/m]
     obstacles: jax.Array    # (O, 3+) rows (x, y, planning radius, ...) [m]; extra columns unused
     obstacle_active: jax.Array  # (O,) bool
+    e_c: jax.Array = robust.NONE.e_c   # (M, 2) tube: COM error bound per step m, plane [m]
+    e_u: jax.Array = robust.NONE.e_u   # (M, 2) tube: stepping-law correction bound |K e| [m]
+    e_heading: jax.Array = 1.0  # 1: those planes are sagittal/lateral; 0: world x/y
 
 
 class Preview(NamedTuple):
@@ -141,13 +144,44 @@ def obstacle_normals(prev_c, heading, obstacles):
     return jnp.where(dist > 1e-9, diff / jnp.maximum(dist, 1e-9), jnp.array([1.0, 0.0], dt))
 
 
-def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c):
+def _support_c(params: MPCParams, dx, dy, heading, bound):
+    """Support Σ_i |m_i| bound_i of the tube's per-plane box in the world direction (dx, dy),
+    m = its components in the tube's frame (:func:`hlip_jax.robust.frame_weights`); ``bound``
+    (..., 2) per plane, broadcast against the direction's shape."""
+    m1, m2 = robust.frame_weights(dx, dy, heading, params.e_heading)
+    return m1 * bound[..., 0] + m2 * bound[..., 1]
+
+
+def _rows(table, steps):
+    """Rows of a tube table (:mod:`hlip_jax.robust`) for absolute steps ``steps``; the last row
+    (the mRPI bound) serves every later step."""
+    return table[jnp.clip(steps, 0, table.shape[0] - 1)]
+
+
+def _step_tightening(params: MPCParams, heading, steps):
+    """(N,) each: the largest stepping-law correction K e_m along the heading θ_j and across it
+    (support of K F_m, m the absolute step the row places); both sides of the row shrink by it."""
+    c, s = jnp.cos(heading), jnp.sin(heading)
+    b = _rows(params.e_u, steps)
+    return (_support_c(params, c, s, heading, b), _support_c(params, -s, c, heading, b))
+
+
+def _keepout_tightening(params: MPCParams, normal, heading, steps):
+    """(N, O): h_{F_m}(−n) of the COM error along each keep-out normal n_{jo}, m = the absolute
+    step of the planned state c_{j+1}."""
+    b = _rows(params.e_c, steps)[:, None, :]
+    return _support_c(params, -normal[..., 0], -normal[..., 1], heading[:, None], b)
+
+
+def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c, step0=0):
     """The condensed QP (P, q, A, l, u) in z = [V^x, V^y, s] (see :func:`condense`).
 
     Args:
       x0: (2, 3) current state per plane (x plane, y plane).
       stance0: stance foot at t_0 (0 left, 1 right); step 0 is placed by the other foot.
       prev_c: (N, 2) previously planned COM positions c_1..c_N (obstacle linearisation points).
+      step0: absolute index m of x0's step (the tube's rows: step j is m + j, state j+1 is
+        m + j + 1; :mod:`hlip_jax.robust`).
     """
     N = preview.pos.shape[0]
     O = params.obstacles.shape[0]
@@ -179,9 +213,10 @@ def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c):
     stance = (stance0 + jnp.arange(N)) % 2
     sigma = jnp.where(stance == 1, 1.0, -1.0).astype(dt)
     ones = jnp.ones((N,), dt)
-    l_len, u_len = params.length_min * ones - len0, params.length_max * ones - len0
-    l_wid = jnp.where(sigma > 0, params.width_min, -params.width_max) * ones - wid0
-    u_wid = jnp.where(sigma > 0, params.width_max, -params.width_min) * ones - wid0
+    tl, tw = _step_tightening(params, preview.heading, step0 + jnp.arange(N))   # U ⊖ K F_m
+    l_len, u_len = params.length_min * ones - len0 + tl, params.length_max * ones - len0 - tl
+    l_wid = jnp.where(sigma > 0, params.width_min, -params.width_max) * ones - wid0 + tw
+    u_wid = jnp.where(sigma > 0, params.width_max, -params.width_min) * ones - wid0 - tw
 
     # obstacles: n_{jo}·(c_{j+1} − o) + s_o ≥ r_o, c_{j+1} = free_c + Gc V (per plane)
     centre = params.obstacles[:, :2]                                # (O, 2)
@@ -192,7 +227,8 @@ def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c):
     A_obs = jnp.concatenate([rows_x, rows_y, rows_s], axis=2).reshape(N * O, n)
     free_c = free[:, :, 0].T                                         # (N, 2)
     lhs0 = jnp.einsum("jod,jod->jo", normal, free_c[:, None, :] - centre[None, :, :])
-    l_obs = (params.obstacles[None, :, 2] - lhs0)
+    l_obs = (params.obstacles[None, :, 2] - lhs0
+             + _keepout_tightening(params, normal, preview.heading, step0 + 1 + jnp.arange(N)))
     l_obs = jnp.where(params.obstacle_active[None, :], l_obs, -BIG).reshape(N * O)
     u_obs = jnp.full((N * O,), BIG, dt)
     A_slack = jnp.concatenate([jnp.zeros((O, 2 * N), dt), jnp.eye(O, dtype=dt)], axis=1)
@@ -219,10 +255,10 @@ def predict(params: MPCParams, x0, u):
 
 
 def solve(params: MPCParams, x0, preview: Preview, stance0, prev_c, settings: qp.Settings,
-          warm_start=None) -> Plan:
+          warm_start=None, step0=0) -> Plan:
     """Build and solve the condensed MPC QP with :func:`hlip_jax.qp.solve`."""
     N = preview.pos.shape[0]
-    P, q, Aq, lq, uq = build_qp(params, x0, preview, stance0, prev_c)
+    P, q, Aq, lq, uq = build_qp(params, x0, preview, stance0, prev_c, step0)
     sol = qp.solve(P, q, Aq, lq, uq, settings=settings, warm_start=warm_start)
     u = decode(params, x0, sol.x, N)
     slack = jnp.max(sol.x[2 * N:], initial=0.0)

@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import hlip, mpc, paths, progress, qp
+from hlip_jax import hlip, mpc, paths, progress, qp, robust
 from hlip_jax.config import ScenarioConfig
 from hlip_jax.plants import hlip_plant
 from hlip_jax.plants.base import StepCommand
@@ -96,6 +96,15 @@ def _plane_gain(h, g) -> np.ndarray:
             k = hlip.lqr_gain(A, B, jnp.diag(jnp.array([g.q_p, g.q_v])), jnp.array(g.r))
         k = np.concatenate([[0.0], np.asarray(k, np.float64)])
     return np.tile(k, (2, 1))
+
+
+def tube_of(cfg: ScenarioConfig, A, B) -> robust.Tightening:
+    """The MPC's tube tightening (:mod:`hlip_jax.robust`): none unless ``mpc.robust``."""
+    m = cfg.mpc
+    if not m.robust:
+        return robust.NONE
+    w = np.array([[m.w_c_1, m.w_p_1, m.w_v_1], [m.w_c_2, m.w_p_2, m.w_v_2]])
+    return robust.tightening(A, B, stepping_gain(cfg), w, m.w_frame)
 
 
 def n_steps_of(cfg: ScenarioConfig) -> int:
@@ -204,7 +213,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
                            alpha=m.alpha, length_min=m.step_length_min,
                            length_max=m.step_length_max, width_min=m.step_width_min,
                            width_max=m.step_width_max, obstacle_weight=m.obstacle_weight,
-                           obstacles=obs, obstacle_active=act)
+                           obstacles=obs, obstacle_active=act, **tube_of(c, A, B)._asdict())
         path = _path_of(c, t_final, n_samples)
         start = np.array([float(path.x[0]), float(path.y[0])])
         x0 = np.stack([np.array([start[0], 0.0, 0.0]), np.array([start[1], 0.0, 0.0])])
@@ -266,11 +275,12 @@ def simulate_one(scn: Scenario, static: Static):
     T = scn.t_ssp + scn.t_dsp
     dt = scn.x0.dtype
 
-    def plan(x_start, t_start, stance, prev_plan):
+    def plan(x_start, t_start, stance, prev_plan, step):
         prev = _preview(scn.path, t_start, T, N)
         prev_c = prev_plan.states[:, :, 0]
         ws = mpc.shift_warm_start(prev_plan, N, O)
-        new = mpc.solve(scn.mpc, x_start, prev, stance, prev_c, static.settings, warm_start=ws)
+        new = mpc.solve(scn.mpc, x_start, prev, stance, prev_c, static.settings, warm_start=ws,
+                        step0=step)
         ok = (new.status == qp.SOLVED) | (new.status == qp.SOLVED_INACCURATE)
         ok = ok & jnp.all(jnp.isfinite(new.u))
         # fallback on failure: the previous plan, shifted by one step
@@ -286,7 +296,7 @@ def simulate_one(scn: Scenario, static: Static):
     cold = mpc.Plan(u=jnp.zeros((N, 2), dt), states=jnp.broadcast_to(scn.x0, (N, 2, 3)),
         slack=jnp.zeros((), dt), z=jnp.zeros((n_var,), dt), y=jnp.zeros((n_con,), dt),
         status=jnp.int32(1), iterations=jnp.int32(0))
-    plan0, ok0 = plan(scn.x0, jnp.zeros((), dt), stance0, cold)
+    plan0, ok0 = plan(scn.x0, jnp.zeros((), dt), stance0, cold, 0)
     u_h0 = plan0.u[0]
     u_r0 = u_h0  # x_R,0 = x_H,0
     heading0 = paths.reference(scn.path, jnp.zeros((), dt)).heading
@@ -311,7 +321,7 @@ def simulate_one(scn: Scenario, static: Static):
         x_h_next = jnp.where(scn.tube, (carry.x_h @ A.T) + carry.u_h[:, None] * B,
                              (carry.x_r @ A.T) + carry.u_r[:, None] * B)
         # 3. plan from it
-        new_plan, ok = plan(x_h_next, t_k + T, 1 - stance_k, carry.plan)
+        new_plan, ok = plan(x_h_next, t_k + T, 1 - stance_k, carry.plan, k + 1)
         u_h_next = new_plan.u[0]
         # 4. the plant walks one step
         heading_next = paths.reference(scn.path, t_k + T).heading

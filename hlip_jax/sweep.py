@@ -342,6 +342,28 @@ def _cross_checks(cfg: C.ScenarioConfig, where: str) -> None:
                              f"never acts; allowed: 0 <= time < {cfg.duration:g}")
     if cfg.obstacles:
         _check_start_clear(cfg, where)
+    if m.robust:
+        _check_tube(cfg, where)
+
+
+def _check_tube(cfg: C.ScenarioConfig, where: str) -> None:
+    """A robust MPC needs a bounded E (a Schur-stable A + B K on [c, p, v]), one gain in both
+    planes for a heading-frame W, and non-empty tightened step limits (hlip_jax.robust)."""
+    from hlip_jax import robust, rollout
+    m = cfg.mpc
+    if m.mode != "tube":
+        raise SweepError(f"{where}: mpc.mode: {m.mode!r} with mpc.robust = true; allowed: 'tube' "
+                         "(the tube guarantee needs the plan to start from the H-LIP's own state)")
+    if not cfg.gain.with_position:
+        raise SweepError(f"{where}: gain.with_position: false with mpc.robust = true; allowed: "
+                         "true (without the c term the COM position error has no bounded E)")
+    try:
+        A, B = rollout._cached_s2s(cfg.hlip)
+        t = rollout.tube_of(cfg, A, B)
+        robust.check_limits(t, m.step_length_min, m.step_length_max, m.step_width_min,
+                            m.step_width_max)
+    except ValueError as err:
+        raise SweepError(f"{where}: {err}") from None
 
 
 @functools.lru_cache(maxsize=256)

@@ -1,0 +1,145 @@
+"""Tube tightening of the MPC by an error-invariant set: the paper's robust MPC.
+
+The stepping law places u_R = u_H + K e with e = x_R − x_H, so per plane the error obeys
+
+    e⁺ = A_cl e + d,    A_cl = A + B K,    d ∈ W
+
+(d the S2S residual plus the placement error, :mod:`hlip_jax.invariant`).  If E is robust
+positively invariant (A_cl E ⊕ W ⊆ E) and e_0 ∈ E — the planner plans from the H-LIP's own
+state (``mpc.mode = "tube"``) and starts on the robot, e_0 = 0 — then e_k ∈ E at every step and
+
+    steps:     u_R ∈ U                 ⇐  u_H ∈ U ⊖ K E
+    keep-out:  n·(c_R − o) ≥ r         ⇐  n·(c_H − o) ≥ r + h_E(−n)
+
+(h_E the support function; for a unit normal n of a half-plane outside the disc the robot's
+COM then stays out of the disc, |c_R − o| ≥ n·(c_R − o) ≥ r).  The MPC's constraint rows
+(:func:`hlip_jax.mpc.build_qp`) carry exactly these tightenings at the pre-impact instants where
+the S2S model lives; between impacts nothing is claimed.  A placement error that the plant adds
+after the law (``step_error``) is inside d for the invariance, but U ⊖ K E only tightens the
+law's part of the step.
+
+W is a box of symmetric half-widths w = (w_c, w_p, w_v) [m, m, m/s] per plane (a box measured
+from samples, ``w_lo``/``w_hi`` of coverage.csv, is enclosed by the symmetric box of half-widths
+max(|lo|, |hi|)), in one of two frames:
+
+* ``"heading"``: plane 1 sagittal, plane 2 lateral, the error rotated into the path heading
+  (what the report and coverage.csv show when both planes share one gain);
+* ``"world"``: plane 1 world x, plane 2 world y (the H-LIP plant's noise acts per world axis).
+
+Because the loop starts on the H-LIP (e_0 = 0), the error after m steps lies in the reachable
+set F_m = W ⊕ A_cl W ⊕ … ⊕ A_cl^{m−1} W (F_0 = {0}), which grows to the mRPI set F_∞.  The
+tube uses F_m for the constraints of step m — exact, and it leaves the first steps from rest
+untightened (a fixed F_∞ forces the nominal to start with the widest steps) — through two
+numbers per plane i and step m,
+
+    ec_i(m) = h_{F_m}(e_c) = Σ_{l<m} |(A_cl^l)ᵀ e_c| · w_i   [m]   (COM position error bound)
+    eu_i(m) = h_{F_m}(K_i) = Σ_{l<m} |(A_cl^l)ᵀ K_i| · w_i   [m]   (stepping-law correction)
+
+(support of a symmetric box: h_W(d) = |d|·w).  A table holds m = 0..STEPS−2; its last row is
+the support of the outer mRPI approximation (:func:`hlip_jax.invariant.mrpi`), which bounds
+every F_m, and serves every later step.  In the heading frame the rows are rotated into the
+world by the heading of each planned step (:func:`frame_weights`).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from hlip_jax import invariant as inv
+
+FRAMES = ("heading", "world")
+
+
+#: rows of the per-step tube table (steps 0..STEPS−2 exact, then the mRPI bound)
+STEPS = 48
+
+
+class Tightening(NamedTuple):
+    """Per-scenario tube data of the MPC (zeros: no tightening, E = {0})."""
+    e_c: np.ndarray        # (STEPS, 2) ec per step and plane [m]
+    e_u: np.ndarray        # (STEPS, 2) eu per step and plane [m]
+    e_heading: np.ndarray  # 1.0: planes in the path-heading frame; 0.0: world x / y
+
+
+NONE = Tightening(e_c=np.zeros((STEPS, 2)), e_u=np.zeros((STEPS, 2)), e_heading=np.float64(1.0))
+
+
+def plane_bounds(A_cl, K, w, steps: int = STEPS) -> np.ndarray:
+    """(steps, 2) [ec(m), eu(m)] of one plane for m = 0..steps−2 (support of F_m) and, in the
+    last row, of the outer mRPI set of W = [−w, w].
+
+    Args:
+      A_cl: (3, 3) closed-loop S2S matrix A + B K on [c, p, v], Schur stable.
+      K: (3,) stepping gain.
+      w: (3,) half-widths of W, ≥ 0 [m, m, m/s].
+    """
+    A_cl, K, w = (np.asarray(a, np.float64) for a in (A_cl, K, w))
+    out = np.zeros((steps, 2))
+    if not np.any(w > 0):
+        return out
+    D = np.stack([np.eye(3)[0], K])               # directions e_c and K
+    for m in range(1, steps - 1):
+        D_prev = D @ np.linalg.matrix_power(A_cl, m - 1)      # rows (A_cl^{m−1})ᵀ d
+        out[m] = out[m - 1] + np.abs(D_prev) @ w
+    E = inv.mrpi(A_cl, inv.Box(-w, w), min_halfwidth=1e-9)
+    out[-1] = np.maximum(np.asarray(E.support(D), np.float64), out[-2])
+    return out
+
+
+@functools.lru_cache(maxsize=1024)
+def _cached(A_cl: tuple, K: tuple, w: tuple) -> np.ndarray:
+    return plane_bounds(np.array(A_cl).reshape(3, 3), np.array(K), np.array(w))
+
+
+def tightening(A, B, gain, w, frame: str) -> Tightening:
+    """The MPC's :class:`Tightening` for a W box ``w`` (2, 3) in ``frame`` (:data:`FRAMES`).
+
+    Args:
+      A, B: (3, 3), (3,) S2S model on [c, p, v]; gain: (2, 3) K per world plane.
+    Raises ValueError when a plane's A + B K is not Schur stable (no bounded E; e.g. a gain
+    without the c term leaves the COM position error unbounded) or when the heading frame is
+    asked for with different gains in the two planes (the error's rotation into the heading
+    commutes with A_cl only when both planes share it)."""
+    if frame not in FRAMES:
+        raise ValueError(f"frame: {frame!r} is not one of {FRAMES}")
+    A, B, gain, w = (np.asarray(a, np.float64) for a in (A, B, gain, w))
+    if frame == "heading" and not np.allclose(gain[0], gain[1]):
+        raise ValueError("a W box in the heading frame needs the same stepping gain in both "
+                         "planes (gain.lateral = 'same')")
+    ec, eu = np.zeros((STEPS, 2)), np.zeros((STEPS, 2))
+    for i in range(2):
+        A_cl = A + np.outer(B, gain[i])
+        if not np.all(np.abs(np.linalg.eigvals(A_cl)) < 1 - 1e-9):
+            raise ValueError("A + B K is not Schur stable on [c, p, v]: the COM position error "
+                             "has no bounded invariant set (use gain.with_position = true)")
+        b = _cached(tuple(A_cl.ravel()), tuple(gain[i]), tuple(w[i]))
+        ec[:, i], eu[:, i] = b[:, 0], b[:, 1]
+    return Tightening(e_c=ec, e_u=eu, e_heading=np.float64(frame == "heading"))
+
+
+def check_limits(t: Tightening, length_min, length_max, width_min, width_max) -> None:
+    """ValueError when U ⊖ K E is empty for some heading: the step rows shrink by the support
+    of K E along and across the heading (≤ √(eu_1² + eu_2²) in the world frame)."""
+    eu = t.e_u.max(axis=0)
+    worst = (float(np.hypot(*eu)),) * 2 if t.e_heading == 0 else tuple(map(float, eu))
+    for name, lo, hi, m in (("step_length", length_min, length_max, worst[0]),
+                            ("step_width", width_min, width_max, worst[1])):
+        if hi - lo < 2 * m:
+            raise ValueError(f"mpc.{name}_min/max: [{lo:g}, {hi:g}] m leaves no room for the "
+                             f"stepping law's correction K E (±{m:.3g} m): U ⊖ K E is empty; "
+                             f"allowed: mpc.{name}_max - mpc.{name}_min >= {2 * m:.3g} m, or a "
+                             "smaller W")
+
+
+def frame_weights(dx, dy, heading, frame_heading):
+    """|components| of the world direction (dx, dy) in the tightening's frame: rotated by
+    −heading when ``frame_heading`` is 1 (sagittal, lateral), unrotated when 0 (world x, y).
+    Support of the box E_c = [−ec_1, ec_1] × [−ec_2, ec_2] in that direction is
+    Σ_i weight_i · ec_i.  Works elementwise on arrays (jax or numpy)."""
+    phi = heading * frame_heading
+    c, s = jnp.cos(phi), jnp.sin(phi)
+    return jnp.abs(c * dx + s * dy), jnp.abs(-s * dx + c * dy)

@@ -1,0 +1,131 @@
+"""Tube MPC (hlip_jax.robust and its rows in hlip_jax.mpc.build_qp).
+
+Independent references: the worst-case disturbance sequence of a box W (each step's d at the
+vertex sign((A_cl^l)ᵀ d_dir) · w), which attains the support of the reachable set F_m exactly,
+so the table rows are checked against simulated errors (tolerance 1e-12: the same sums in a
+different order); the outer mRPI bound against 2000 random vertex sequences (it must hold, not
+be tight); the tightened constraint rows against the nominal rows shifted by hand; and the
+closed loop on the H-LIP plant, whose S2S noise is a box of known half-width, so the tube's
+guarantee is exact: no keep-out violation at any impact with mpc.robust, where the nominal MPC
+does violate it on the same seeds.
+"""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hlip_jax import config as C
+from hlip_jax import hlip, mpc, resources, robust, rollout, sweep
+
+
+def _plane(gain_type="lqr"):
+    h = C.HLIPConfig(z0=0.8, t_ssp=0.3, t_dsp=0.1)
+    A, B = (np.asarray(a, np.float64) for a in hlip.s2s_matrices(0.8, 0.3, 0.1, with_position=True))
+    K = rollout._plane_gain(h, C.GainConfig(type=gain_type))[0]
+    return A, B, K, A + np.outer(B, K)
+
+
+@pytest.mark.parametrize("gain_type", ["deadbeat", "lqr"])
+def test_table_rows_are_attained_by_the_worst_disturbance_sequence(gain_type):
+    A, B, K, A_cl = _plane(gain_type)
+    w = np.array([0.01, 0.02, 0.05])
+    table = robust.plane_bounds(A_cl, K, w, steps=12)
+    assert np.all(table[0] == 0.0), "F_0 = {0}: the first step is not tightened"
+    assert np.all(np.diff(table, axis=0) >= -1e-15), "F_m grows with m"
+    for m in range(1, 11):
+        for col, d_dir in enumerate((np.eye(3)[0], K)):
+            e = np.zeros(3)
+            for l in range(m):                      # d_l multiplies A_cl^{m-1-l}
+                d = np.sign(np.linalg.matrix_power(A_cl, m - 1 - l).T @ d_dir) * w
+                e = A_cl @ e + d
+            assert d_dir @ e == pytest.approx(table[m, col], abs=1e-12)
+
+
+def test_last_row_bounds_every_random_error_sequence():
+    A, B, K, A_cl = _plane("lqr")
+    w = np.array([0.01, 0.01, 0.05])
+    table = robust.plane_bounds(A_cl, K, w)
+    rng = np.random.default_rng(0)
+    e = np.zeros((2000, 3))
+    worst = np.zeros(2)
+    for _ in range(200):
+        e = e @ A_cl.T + rng.choice([-1.0, 1.0], size=e.shape) * w
+        worst = np.maximum(worst, np.abs(np.stack([e[:, 0], e @ K], axis=1)).max(axis=0))
+    assert np.all(worst <= table[-1] + 1e-12)
+    assert np.all(worst >= 0.5 * table[-1]), "the bound is not absurdly loose"
+
+
+def test_zero_w_gives_no_tightening():
+    A, B, K, A_cl = _plane()
+    assert np.all(robust.plane_bounds(A_cl, K, np.zeros(3)) == 0.0)
+
+
+def test_unstable_closed_loop_and_mixed_gains_are_rejected():
+    A, B, K, _ = _plane()
+    with pytest.raises(ValueError, match="Schur"):
+        robust.tightening(A, B, np.zeros((2, 3)), np.full((2, 3), 0.01), "world")
+    K2 = np.stack([K, 2 * K])
+    with pytest.raises(ValueError, match="same stepping gain"):
+        robust.tightening(A, B, K2, np.full((2, 3), 0.01), "heading")
+
+
+def _params(**kw):
+    A, B = hlip.s2s_matrices(0.8, 0.3, 0.1)
+    d = dict(w_pos=1.0, w_vel=0.2, alpha=0.05, length_min=-0.3, length_max=0.5,
+             width_min=0.1, width_max=0.4, obstacle_weight=1e3)
+    obstacles = jnp.array([[1.0, 0.3, 0.25]])
+    return mpc.MPCParams(A=A, B=B, obstacles=obstacles, obstacle_active=jnp.array([True]),
+                         **{k: jnp.asarray(v, jnp.float64) for k, v in d.items()}, **kw)
+
+
+@pytest.mark.parametrize("frame", [1.0, 0.0])
+def test_rows_shrink_by_the_support_of_the_tube(frame):
+    N, steps = 4, 10
+    rng = np.random.default_rng(3)
+    e_c = np.cumsum(rng.uniform(0, 0.02, (steps, 2)), axis=0)
+    e_u = np.cumsum(rng.uniform(0, 0.01, (steps, 2)), axis=0)
+    heading = jnp.array([0.0, 0.4, 0.8, 1.2])
+    prev = mpc.Preview(pos=jnp.zeros((N, 2)), vel=jnp.zeros((N, 2)), heading=heading)
+    x0 = jnp.array([[0.0, 0.05, 0.3], [0.0, -0.05, 0.1]])
+    prev_c = jnp.stack([jnp.linspace(0.2, 0.8, N), jnp.zeros(N)], axis=1)
+    step0 = 7                                       # rows 7..10; 10 is clipped to the last
+    nominal = mpc.build_qp(_params(), x0, prev, 1, prev_c)
+    tube = mpc.build_qp(_params(e_c=jnp.asarray(e_c), e_u=jnp.asarray(e_u),
+                                e_heading=jnp.asarray(frame)), x0, prev, 1, prev_c, step0)
+    rows = np.minimum(step0 + np.arange(N), steps - 1)
+    th = np.asarray(heading)
+    phi = th * frame
+    # length along (cos θ, sin θ), width along (-sin θ, cos θ), both seen in the tube's frame
+    def supp(dx, dy, b):
+        c, s = np.cos(phi), np.sin(phi)
+        return np.abs(c * dx + s * dy) * b[:, 0] + np.abs(-s * dx + c * dy) * b[:, 1]
+    tl = supp(np.cos(th), np.sin(th), e_u[rows])
+    tw = supp(-np.sin(th), np.cos(th), e_u[rows])
+    l0, u0, l1, u1 = (np.asarray(a) for a in (nominal[3], nominal[4], tube[3], tube[4]))
+    np.testing.assert_allclose(l1[:N] - l0[:N], tl, atol=1e-12)
+    np.testing.assert_allclose(u0[:N] - u1[:N], tl, atol=1e-12)
+    np.testing.assert_allclose(l1[N:2 * N] - l0[N:2 * N], tw, atol=1e-12)
+    np.testing.assert_allclose(u0[N:2 * N] - u1[N:2 * N], tw, atol=1e-12)
+    if frame == 1.0:
+        np.testing.assert_allclose(tl, e_u[rows, 0], atol=1e-12)   # sagittal bound only
+    # keep-out rows: + h_F(−n) with the obstacle normal of each planned state c_{j+1}
+    n = np.asarray(mpc.obstacle_normals(prev_c, heading, _params().obstacles))[:, 0, :]
+    rows_c = np.minimum(step0 + 1 + np.arange(N), steps - 1)
+    h = supp(-n[:, 0], -n[:, 1], e_c[rows_c])
+    np.testing.assert_allclose(l1[2 * N:3 * N] - l0[2 * N:3 * N], h, atol=1e-12)
+
+
+def test_tube_keeps_the_com_out_of_every_disc_on_the_hlip_plant():
+    sw = sweep.load_sweep(resources.data_dir("sweeps") / "robust_mpc.toml")
+    cfgs = [c for c in sw.scenarios if c.swept["seed"] in (1, 2, 3) and c.gain.type == "lqr"]
+    log = rollout.simulate(cfgs)
+    valid = np.asarray(log.valid)
+    clear = np.where(valid, np.asarray(log.clearance), np.inf).min(axis=1)
+    robust_on = np.array([c.mpc.robust for c in cfgs])
+    assert np.all(valid[robust_on].sum(axis=1) == rollout.n_steps_of(cfgs[0])), "all walk"
+    assert np.all(clear[robust_on] >= 0.0), clear[robust_on]
+    assert np.any(clear[~robust_on] < 0.0), "the nominal MPC violates some disc on these seeds"
