@@ -13,7 +13,7 @@ Reads only the store (``manifest.json``, ``chunks/``, ``summary.csv``; see
   the x–y plane (desired path red, H-LIP COM blue, robot COM green, obstacles grey),
   global position and velocity against time (reference dashed), and the step sizes in the
   sagittal and lateral planes (steps rotated into the path heading θ_d(t_k)); the invariant-set
-  figure per plane (:func:`hlip_jax.invariant.plot_planes`: E of the [p, v] error dynamics
+  figure per plane (:func:`hlip_jax.set_figures.plot_planes`: E of the [p, v] error dynamics
   with the observed errors; planes of the path's heading frame when the gain is the same in
   both, :func:`hlip_jax.store.analysis_frame`); and a coverage table — W, E and the in-sample bracket
   (inner F_s, outer F_s/(1−α)) from all runs of that path sharing the representative's gain,
@@ -36,7 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
-from hlip_jax import steplog, store, sweep
+from hlip_jax import set_figures, steplog, store, sweep
 
 __all__ = ["ReportError", "write_report", "FIGURE_KINDS"]
 
@@ -193,7 +193,7 @@ def fig_invariant(an, log, members, path: Path, title: str) -> None:
     if store.analysis_frame(log, members[0]) == "heading":
         e = inv.to_heading(e, np.asarray(log["ref_heading"][sel], np.float64))
     e = e[valid]                                                     # (n, 2, dim)
-    fig = inv.plot_planes((an.planes[0].E, an.planes[1].E), (e[:, 0], e[:, 1]),
+    fig = set_figures.plot_planes((an.planes[0].E, an.planes[1].E), (e[:, 0], e[:, 1]),
                           title=title + " — error invariant sets E and errors e_k")
     fig.savefig(path, dpi=DPI)
     plt.close(fig)

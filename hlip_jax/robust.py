@@ -36,7 +36,7 @@ numbers per plane i and step m,
     eu_i(m) = h_{F_m}(K_i) = Σ_{l<m} |(A_cl^l)ᵀ K_i| · w_i   [m]   (stepping-law correction)
 
 (support of a symmetric box: h_W(d) = |d|·w).  A table holds m = 0..STEPS−2; its last row is
-the support of the outer mRPI approximation (:func:`hlip_jax.invariant.mrpi`), which bounds
+the support of the outer mRPI approximation (:func:`hlip_jax.sets.mrpi`), which bounds
 every F_m, and serves every later step.  In the heading frame the rows are rotated into the
 world by the heading of each planned step (:func:`frame_weights`).
 """
@@ -49,7 +49,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import invariant as inv
+from hlip_jax import sets
 
 FRAMES = ("heading", "world")
 
@@ -85,7 +85,7 @@ def plane_bounds(A_cl, K, w, steps: int = STEPS) -> np.ndarray:
     for m in range(1, steps - 1):
         D_prev = D @ np.linalg.matrix_power(A_cl, m - 1)      # rows (A_cl^{m−1})ᵀ d
         out[m] = out[m - 1] + np.abs(D_prev) @ w
-    E = inv.mrpi(A_cl, inv.Box(-w, w), min_halfwidth=1e-9)
+    E = sets.mrpi(A_cl, sets.Box(-w, w), min_halfwidth=1e-9)
     out[-1] = np.maximum(np.asarray(E.support(D), np.float64), out[-2])
     return out
 

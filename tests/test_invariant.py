@@ -13,6 +13,7 @@ from scipy.spatial import ConvexHull
 
 from hlip_jax import hlip
 from hlip_jax import invariant as inv
+from hlip_jax import set_figures
 
 Z0, TS, TD = 0.8, 0.3, 0.1
 _lqr_gain = jax.jit(hlip.lqr_gain)  # one compile per shape instead of eager op-by-op
@@ -415,11 +416,11 @@ def test_figures(tmp_path):
     E3 = inv.mrpi(_acl3("lqr"), inv.Box(-jnp.ones(3) * 0.01, jnp.ones(3) * 0.02))
     E2 = inv.mrpi(_deadbeat2(), inv.Box(-jnp.ones(2) * 0.01, jnp.ones(2) * 0.02))
     rng = np.random.default_rng(0)
-    fig = inv.plot_planes((E3, E2), (rng.normal(size=(200, 3)) * 0.03,
+    fig = set_figures.plot_planes((E3, E2), (rng.normal(size=(200, 3)) * 0.03,
                                      rng.normal(size=(200, 2)) * 0.02), title="E")
     fig.savefig(tmp_path / "e.png")
     assert (tmp_path / "e.png").stat().st_size > 1000
-    ax = inv.plot_set_2d(E3, rng.normal(size=(100, 3)) * 0.03, dims=(1, 2))  # [p, v] projection
+    ax = set_figures.plot_set_2d(E3, rng.normal(size=(100, 3)) * 0.03, dims=(1, 2))  # [p, v] projection
     assert ax.get_xlabel() == "p [m]"
 
 
