@@ -210,7 +210,7 @@ def _load(args):
 
 
 def cmd_run(args) -> int:
-    from hlip_jax import report, store
+    from hlip_jax import report, runner, store
     sw = _load(args)
     out = Path(args.out) if args.out else Path("results") / sw.name
     try:
@@ -233,9 +233,9 @@ def cmd_run(args) -> int:
             args.quiet = True
     if not args.quiet:
         print(f"{PROG}: {sw.name}: {sw.n_scenarios} scenarios -> {out}", file=sys.stderr)
-    res = store.run_sweep(sw, out, batch=args.batch, resume=args.resume,
-                          overwrite=args.overwrite, simulate=sim, max_chunks=args.max_chunks,
-                          progress=not args.quiet, with_coverage=not args.no_coverage)
+    res = runner.run_sweep(sw, out, batch=args.batch, resume=args.resume,
+                           overwrite=args.overwrite, simulate=sim, max_chunks=args.max_chunks,
+                           progress=not args.quiet, with_coverage=not args.no_coverage)
     if not res.complete:
         print(f"{PROG}: stopped after {res.chunks_run} chunk(s); {out} is incomplete: "
               f"continue with `{PROG} run {args.sweep} --out {out} --resume`", file=sys.stderr)

@@ -15,7 +15,7 @@ Reads only the store (``manifest.json``, ``chunks/``, ``summary.csv``; see
   sagittal and lateral planes (steps rotated into the path heading θ_d(t_k)); the invariant-set
   figure per plane (:func:`hlip_jax.set_figures.plot_planes`: E of the [p, v] error dynamics
   with the observed errors; planes of the path's heading frame when the gain is the same in
-  both, :func:`hlip_jax.store.analysis_frame`); and a coverage table — W, E and the in-sample bracket
+  both, :func:`hlip_jax.metrics.analysis_frame`); and a coverage table — W, E and the in-sample bracket
   (inner F_s, outer F_s/(1−α)) from all runs of that path sharing the representative's gain,
   plus held-out coverage (W from half of those runs, coverage on the other half; with a single
   run, the per-run figure of ``summary.csv``: W from the first half of its steps).
@@ -36,7 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
-from hlip_jax import set_figures, steplog, store, sweep
+from hlip_jax import metrics, set_figures, steplog, store, sweep
 
 __all__ = ["ReportError", "write_report", "FIGURE_KINDS"]
 
@@ -162,13 +162,13 @@ def fig_steps(log, path: Path, title: str) -> None:
 
 
 def _plane_mats(log, s):
-    A, B, K, _ = store.error_model(log, s)
+    A, B, K, _ = metrics.error_model(log, s)
     return A, B, K
 
 
 def invariant_analysis(log, members: list[int]):
     """:func:`hlip_jax.invariant.analyse` on the errors of ``members`` (rows of ``log``, same
-    A, B, K; [c, p, v] or [p, v] as :func:`hlip_jax.store.error_model` decides): W box,
+    A, B, K; [c, p, v] or [p, v] as :func:`hlip_jax.metrics.error_model` decides): W box,
     held-out half when there are ≥ 2 runs."""
     from hlip_jax import invariant as inv
     A, B, K = _plane_mats(log, members[0])
@@ -176,10 +176,10 @@ def invariant_analysis(log, members: list[int]):
     valid = steplog.alive(log["valid"][sel])
     hold = 0.5 if len(members) >= 2 else 0.0
     heading = (np.asarray(log["ref_heading"][sel], np.float64)
-               if store.analysis_frame(log, members[0]) == "heading" else None)
+               if metrics.analysis_frame(log, members[0]) == "heading" else None)
     return inv.analyse(log["x_robot"][sel], log["u_robot"][sel], valid, log["e"][sel],
                        A, B, K, W_estimator="box", holdout_fraction=hold, seed=0,
-                       min_halfwidth=store.W_MIN_HALFWIDTH, u_hlip=log["u_hlip"][sel],
+                       min_halfwidth=metrics.W_MIN_HALFWIDTH, u_hlip=log["u_hlip"][sel],
                        heading=heading)
 
 
@@ -188,9 +188,9 @@ def fig_invariant(an, log, members, path: Path, title: str) -> None:
     plt = _plt()
     sel = np.asarray(members)
     valid = steplog.alive(log["valid"][sel])
-    sl = store.error_model(log, members[0])[3]
+    sl = metrics.error_model(log, members[0])[3]
     e = np.asarray(log["e"][sel], np.float64)[..., sl]
-    if store.analysis_frame(log, members[0]) == "heading":
+    if metrics.analysis_frame(log, members[0]) == "heading":
         e = inv.to_heading(e, np.asarray(log["ref_heading"][sel], np.float64))
     e = e[valid]                                                     # (n, 2, dim)
     fig = set_figures.plot_planes((an.planes[0].E, an.planes[1].E), (e[:, 0], e[:, 1]),
@@ -582,7 +582,7 @@ def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
             and bool(np.asarray(log["valid"][pos[i]]).any())]
     doc.h(3, "Error invariant sets and coverage")
     try:
-        frame = store.analysis_frame(log, same[0])
+        frame = metrics.analysis_frame(log, same[0])
         an = invariant_analysis(log, same)
         fig_invariant(an, log, same, fig_dir / f"{slug}_invariant.png", pname)
         doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")
@@ -645,7 +645,7 @@ def _closing_sections(doc: "_Doc", man: dict, rows: list[dict], fig_dir: Path, h
     if pushed:
         doc.h(2, f"Pushes ({len(pushed)})")
         doc.p(f"Largest COM-to-path distance from the first push on, and the steps until the "
-              f"COM is back within {store.RECOVERY_TOL} m of the path and stays there to the end "
+              f"COM is back within {metrics.RECOVERY_TOL} m of the path and stays there to the end "
               f"(– : fell, or not back by the end).")
         doc.table(["#", "scenario", "status", "peak distance [m]", "steps to recover"],
                   [[r["index"], r["name"], r["status"], _fmt(r["push_peak_err"]),

@@ -14,6 +14,7 @@ import pytest
 from scipy import stats as st
 
 from hlip_jax import coverage as cov
+from hlip_jax import metrics, runner
 from hlip_jax import invariant as inv
 from hlip_jax import report, store, sweep
 
@@ -149,7 +150,7 @@ seed = [1, 2, 3, 4, 5, 6]
 @pytest.fixture(scope="module")
 def hlip_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("cov") / "r"
-    store.run_sweep(sweep.parse_sweep(SWEEP), out, progress=False)
+    runner.run_sweep(sweep.parse_sweep(SWEEP), out, progress=False)
     return out
 
 
@@ -219,11 +220,11 @@ def test_true_w_gives_full_across_run_coverage(hlip_run):
     man = store.read_manifest(hlip_run)
     log = store.load_log(hlip_run, [i for i, c in enumerate(man["configs"])
                                     if c["swept"]["path"] == "line"])
-    A, B, K, _ = store.error_model(log, 0)
+    A, B, K, _ = metrics.error_model(log, 0)
     true_W = inv.Box(-np.array([NP, NP, NV]) - 1e-6, np.array([NP, NP, NV]) + 1e-6)
     for s in range(log["index"].size):
         mask = steplog.alive(log["valid"][s])
-        _, _, _, e, _, _ = store.error_samples(log, s, mask, store._placement(log, s))
+        _, _, _, e, _, _ = metrics.error_samples(log, s, mask, metrics.placement(log, s))
         for p in range(2):
             E = inv.mrpi(A + np.outer(B, K[p]), true_W)
             k, n, c, lo, hi = cov.coverage_ci(E, e[mask, p])
@@ -248,7 +249,7 @@ def test_single_replicate_sweep_falls_back_to_time_split(tmp_path):
     one = SWEEP[:SWEEP.index("[[paths]]")] + '[[paths]]\nshape = "line"\n'
     sw = sweep.parse_sweep(one)
     assert len(sw.scenarios) == 1
-    store.run_sweep(sw, tmp_path / "one", progress=False)
+    runner.run_sweep(sw, tmp_path / "one", progress=False)
     _, rows = _csv(tmp_path / "one")
     assert rows and {r["split"] for r in rows} == {"time"}
     assert {r["train_runs"] for r in rows} == {"1"}
@@ -269,7 +270,7 @@ def test_unswept_seed_splits_by_run(tmp_path):
     group; without a swept seed each run is its own replicate (split "run")."""
     text = (SWEEP[:SWEEP.index("[[paths]]")] + '[[paths]]\nshape = "line"\n'
             '[grid.product]\n"mpc.alpha" = [0.01, 0.1]\n')
-    store.run_sweep(sweep.parse_sweep(text), tmp_path / "r", progress=False)
+    runner.run_sweep(sweep.parse_sweep(text), tmp_path / "r", progress=False)
     _, rows = _csv(tmp_path / "r")
     assert {r["group"] for r in rows} == {"line"}
     assert {(r["split"], r["train_runs"], r["test_runs"]) for r in rows} == {("run", "1", "1")}
@@ -288,7 +289,7 @@ def test_quantile_w_held_out_over_50_seeds(tmp_path):
     sw = sweep.parse_sweep(text)
     assert len(sw.scenarios) == 50
     out = tmp_path / "r"
-    store.run_sweep(sw, out, progress=False)
+    runner.run_sweep(sw, out, progress=False)
     man = store.read_manifest(out)
     d_by_seed = {}
     for f in store.chunk_files(out):
@@ -319,7 +320,7 @@ def test_train_on_path_tests_w_on_the_other_path(tmp_path):
             + '[[paths]]\nshape = "line"\n[[paths]]\nshape = "circle"\n'
             '[grid.product]\nseed = [1, 2]\n')
     out = tmp_path / "r"
-    store.run_sweep(sweep.parse_sweep(text), out, progress=False)
+    runner.run_sweep(sweep.parse_sweep(text), out, progress=False)
     rows = store.coverage_rows(out, train_on=("path", ["line"]))
     assert rows and {r["group"] for r in rows} == {"line+circle"}
     for r in rows:

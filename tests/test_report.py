@@ -17,13 +17,13 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from test_store import TINY, fake_simulate  # noqa: E402
 
-from hlip_jax import report, store, sweep  # noqa: E402
+from hlip_jax import report, runner, store, sweep  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def tiny_report(tmp_path_factory):
     out = tmp_path_factory.mktemp("rep") / "tiny"
-    store.run_sweep(sweep.parse_sweep(TINY), out, batch=4, progress=False, simulate=fake_simulate)
+    runner.run_sweep(sweep.parse_sweep(TINY), out, batch=4, progress=False, simulate=fake_simulate)
     html_p, md_p = report.write_report(out)
     return out, html_p.read_text(), md_p.read_text()
 
@@ -85,7 +85,7 @@ def test_report_errors(tmp_path):
     with pytest.raises(report.ReportError, match="not a results directory"):
         report.write_report(tmp_path)
     out = tmp_path / "part"
-    store.run_sweep(sweep.parse_sweep(TINY), out, batch=4, progress=False,
+    runner.run_sweep(sweep.parse_sweep(TINY), out, batch=4, progress=False,
                     simulate=fake_simulate, max_chunks=1)
     with pytest.raises(report.ReportError, match="incomplete"):
         report.write_report(out)

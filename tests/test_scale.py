@@ -17,7 +17,7 @@ jax.config.update("jax_enable_x64", True)
 
 import pytest
 
-from hlip_jax import rollout, store, sweep
+from hlip_jax import rollout, runner, store, sweep
 
 SMALL_SWEEP = textwrap.dedent("""
     name = "scale-test"
@@ -48,7 +48,7 @@ def test_one_compile_per_sweep(tmp_path):
     sw = sweep.parse_sweep(SMALL_SWEEP, source="scale-test.toml")
     assert len(sw.scenarios) == 6
     before = rollout.run._cache_size()
-    res = store.run_sweep(sw, tmp_path / "out", batch=2, progress=False, with_coverage=False)
+    res = runner.run_sweep(sw, tmp_path / "out", batch=2, progress=False, with_coverage=False)
     assert res.complete and res.chunks_run == 3
     assert rollout.run._cache_size() - before == 1
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlip_jax import hlip, steplog, store, sweep
+from hlip_jax import hlip, metrics, runner, steplog, store, sweep
 
 TINY = """
 name = "tiny"
@@ -115,7 +115,7 @@ def _arrays(out: Path) -> dict:
 def test_run_writes_manifest_chunks_summary(tmp_path):
     sw = _tiny()
     calls = []
-    res = store.run_sweep(sw, tmp_path / "r", batch=3, progress=False,
+    res = runner.run_sweep(sw, tmp_path / "r", batch=3, progress=False,
                           simulate=lambda c: fake_simulate(c, calls=calls))
     assert res.complete and res.n_chunks == 3 and res.chunks_run == 3
     assert calls == [3, 3, 3], "last chunk padded to the batch size"
@@ -150,19 +150,19 @@ def test_run_writes_manifest_chunks_summary(tmp_path):
 def test_error_model_state_size():
     sw = _tiny()
     log = fake_simulate([sw.scenarios[0], sw.scenarios[4]])._asdict()
-    A, B, K, sl = store.error_model(log, 0)
+    A, B, K, sl = metrics.error_model(log, 0)
     assert A.shape == (3, 3) and K.shape == (2, 3) and sl == slice(0, 3)
     # deadbeat on [c, p, v]: (A + BK)^3 = 0 (Ackermann).  The gains come from JAX in float32
     # (x64 off here): entries of A are O(10), so 1e-4 absolute covers the float32 rounding.
     np.testing.assert_allclose(np.linalg.matrix_power(A + np.outer(B, K[0]), 3), 0, atol=1e-4)
-    A, B, K, sl = store.error_model(log, 1)
+    A, B, K, sl = metrics.error_model(log, 1)
     assert A.shape == (2, 2) and K.shape == (2, 2) and sl == slice(1, 3)
     np.testing.assert_allclose(np.linalg.matrix_power(A + np.outer(B, K[0]), 2), 0, atol=1e-4)
 
 
 def test_metrics_against_hand_computation():
     log = fake_simulate(_tiny().scenarios[:1])._asdict()
-    m = store.scenario_metrics(log, 0, with_coverage=False)
+    m = metrics.scenario_metrics(log, 0, with_coverage=False)
     c = log["x_robot"][0][:, :, 0]
     r = log["ref_pos"][0]
     d = np.linalg.norm(c - r, axis=1)
@@ -196,7 +196,7 @@ def test_placement_metrics_and_coverage_count_the_placement_error():
     in-sample coverage stays 1 (the errors obey e⁺ = A_cl e + w + B δu exactly and W ∋ 0)."""
     sc = _tiny().scenarios[0]
     log = fake_simulate([sc])._asdict()
-    m0 = store.scenario_metrics(log, 0, with_coverage=False)
+    m0 = metrics.scenario_metrics(log, 0, with_coverage=False)
     assert m0["place_err_rms"] < 1e-12 and abs(m0["place_err_along"]) < 1e-12
     th = np.deg2rad(30.0)
     n = log["x_robot"].shape[1]
@@ -204,7 +204,7 @@ def test_placement_metrics_and_coverage_count_the_placement_error():
     du = a[:, None] * np.array([np.cos(th), np.sin(th)])
     _rerun_with_placement(log, du)
     log["ref_heading"][0] = th
-    m = store.scenario_metrics(log, 0, with_coverage=True)
+    m = metrics.scenario_metrics(log, 0, with_coverage=True)
     v = np.asarray(log["valid"][0], bool)
     assert v.all()
     assert m["place_err_along"] == pytest.approx(a.mean(), abs=1e-12)
@@ -215,16 +215,16 @@ def test_placement_metrics_and_coverage_count_the_placement_error():
 def test_polyline_distance():
     R = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
     P = np.array([[0.5, 0.2], [1.3, 0.5], [2.0, 2.0], [-1.0, 0.0]])
-    np.testing.assert_allclose(store._seg_dist(P, R), [0.2, 0.3, math.sqrt(2.0), 1.0],
+    np.testing.assert_allclose(metrics._seg_dist(P, R), [0.2, 0.3, math.sqrt(2.0), 1.0],
                                rtol=1e-12)
 
 
 def test_kill_and_resume_is_identical(tmp_path):
     sw = _tiny()
     ref = tmp_path / "ref"
-    store.run_sweep(sw, ref, batch=3, progress=False, simulate=fake_simulate)
+    runner.run_sweep(sw, ref, batch=3, progress=False, simulate=fake_simulate)
     part = tmp_path / "part"
-    r1 = store.run_sweep(sw, part, batch=3, progress=False, simulate=fake_simulate, max_chunks=1)
+    r1 = runner.run_sweep(sw, part, batch=3, progress=False, simulate=fake_simulate, max_chunks=1)
     assert not r1.complete and r1.chunks_run == 1
     assert json.loads((part / "manifest.json").read_text())["status"] == "incomplete"
     assert not (part / "summary.csv").exists()
@@ -234,10 +234,10 @@ def test_kill_and_resume_is_identical(tmp_path):
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        store.run_sweep(sw, part, resume=True, progress=False, simulate=boom)
+        runner.run_sweep(sw, part, resume=True, progress=False, simulate=boom)
     assert json.loads((part / "manifest.json").read_text())["status"] == "incomplete"
     calls = []
-    r2 = store.run_sweep(sw, part, resume=True, progress=False,
+    r2 = runner.run_sweep(sw, part, resume=True, progress=False,
                          simulate=lambda c: fake_simulate(c, calls=calls))
     assert r2.complete and r2.chunks_skipped == 1 and r2.chunks_run == 2 and calls == [3, 3]
     a, b = _arrays(ref), _arrays(part)
@@ -251,22 +251,22 @@ def test_kill_and_resume_is_identical(tmp_path):
 
 def test_resume_refuses_other_config(tmp_path):
     out = tmp_path / "r"
-    store.run_sweep(_tiny(), out, batch=3, progress=False, simulate=fake_simulate, max_chunks=1)
+    runner.run_sweep(_tiny(), out, batch=3, progress=False, simulate=fake_simulate, max_chunks=1)
     other = sweep.parse_sweep(TINY.replace("0.01, 0.1", "0.01, 0.2"))
     with pytest.raises(store.StoreError, match="refusing to resume.*config differs"):
-        store.run_sweep(other, out, resume=True, progress=False, simulate=fake_simulate)
+        runner.run_sweep(other, out, resume=True, progress=False, simulate=fake_simulate)
     with pytest.raises(store.StoreError, match="chunk size differs"):
-        store.run_sweep(_tiny(), out, batch=4, resume=True, progress=False, simulate=fake_simulate)
+        runner.run_sweep(_tiny(), out, batch=4, resume=True, progress=False, simulate=fake_simulate)
     with pytest.raises(store.StoreError, match="already holds a run"):
-        store.run_sweep(_tiny(), out, batch=3, progress=False, simulate=fake_simulate)
-    res = store.run_sweep(other, out, batch=3, overwrite=True, progress=False, simulate=fake_simulate)
+        runner.run_sweep(_tiny(), out, batch=3, progress=False, simulate=fake_simulate)
+    res = runner.run_sweep(other, out, batch=3, overwrite=True, progress=False, simulate=fake_simulate)
     assert res.complete and res.chunks_run == 3
 
 
 def test_load_log_pads_and_selects(tmp_path):
     text = TINY.replace('[[paths]]\nshape = "line"', '[[paths]]\nshape = "line"\n[paths.overrides]\nduration = 6.0')
     out = tmp_path / "r"
-    store.run_sweep(sweep.parse_sweep(text), out, batch=4, progress=False, simulate=fake_simulate)
+    runner.run_sweep(sweep.parse_sweep(text), out, batch=4, progress=False, simulate=fake_simulate)
     log = store.load_log(out)
     assert log["t"].shape == (8, 15) and log["x_robot"].shape == (8, 15, 2, 3)
     assert not log["valid"][:4, 10:].any() and np.isnan(log["t"][0, 12])
@@ -312,11 +312,11 @@ shape = "circle"
 [grid.product]
 "gain.type" = ["deadbeat", "lqr"]
 """)
-    store.run_sweep(sw, tmp_path / "ref", batch=1, progress=False, simulate=rollout.simulate)
-    r1 = store.run_sweep(sw, tmp_path / "part", batch=1, progress=False,
+    runner.run_sweep(sw, tmp_path / "ref", batch=1, progress=False, simulate=rollout.simulate)
+    r1 = runner.run_sweep(sw, tmp_path / "part", batch=1, progress=False,
                          simulate=rollout.simulate, max_chunks=1)
     assert not r1.complete
-    r2 = store.run_sweep(sw, tmp_path / "part", resume=True, progress=False,
+    r2 = runner.run_sweep(sw, tmp_path / "part", resume=True, progress=False,
                          simulate=rollout.simulate)
     assert r2.complete and r2.chunks_skipped == 1 and r2.chunks_run == 1
     a, b = _arrays(tmp_path / "ref"), _arrays(tmp_path / "part")
@@ -328,27 +328,27 @@ shape = "circle"
 
 def test_no_coverage_option(tmp_path):
     out = tmp_path / "r"
-    store.run_sweep(_tiny(), out, batch=4, progress=False, simulate=fake_simulate,
+    runner.run_sweep(_tiny(), out, batch=4, progress=False, simulate=fake_simulate,
                     with_coverage=False)
     rows = store.read_summary(out)
     assert all(math.isnan(r["cov_x_outer"]) for r in rows)
     assert all(math.isfinite(r["rms_track_err"]) for r in rows)
     with pytest.raises(store.StoreError, match="coverage setting differs"):
-        store.run_sweep(_tiny(), out, resume=True, progress=False, simulate=fake_simulate)
+        runner.run_sweep(_tiny(), out, resume=True, progress=False, simulate=fake_simulate)
 
 
 def test_push_recovery_counts_steps_until_back_and_staying():
     t = np.arange(10) * 0.5                       # pre-impact times [s]
     d = np.array([0.05, 0.05, 0.05, 0.30, 0.20, 0.10, 0.16, 0.12, 0.10, 0.08])
     # push at 1.2 s: samples from t = 1.5 on (index 3); outside 0.15 m last at index 6
-    peak, steps = store.push_recovery(d, t, 1.2, failed=False)
+    peak, steps = metrics.push_recovery(d, t, 1.2, failed=False)
     assert peak == 0.30 and steps == 4.0          # back at index 7 = 4 samples after index 3
-    assert store.push_recovery(d, t, 1.2, failed=True) == (0.30, pytest.approx(np.nan, nan_ok=True))
+    assert metrics.push_recovery(d, t, 1.2, failed=True) == (0.30, pytest.approx(np.nan, nan_ok=True))
     # never left the band: 0 steps; still outside at the end: NaN; push after the run: NaN
-    assert store.push_recovery(np.full(10, 0.1), t, 1.0, failed=False) == (0.1, 0.0)
-    peak, steps = store.push_recovery(np.r_[d[:-1], 0.2], t, 1.2, failed=False)
+    assert metrics.push_recovery(np.full(10, 0.1), t, 1.0, failed=False) == (0.1, 0.0)
+    peak, steps = metrics.push_recovery(np.r_[d[:-1], 0.2], t, 1.2, failed=False)
     assert peak == 0.30 and np.isnan(steps)
-    assert all(np.isnan(store.push_recovery(d, t, 100.0, failed=False)))
+    assert all(np.isnan(metrics.push_recovery(d, t, 100.0, failed=False)))
 
 
 def test_coverage_in_the_heading_frame_survives_turning_round():
@@ -370,11 +370,11 @@ def test_coverage_in_the_heading_frame_survives_turning_round():
     du = np.stack([a * np.cos(th) - b * np.sin(th), a * np.sin(th) + b * np.cos(th)], axis=1)
     _rerun_with_placement(log, du)
     log["ref_heading"][0] = th
-    assert store.analysis_frame(log, 0) == "heading"
-    m = store.scenario_metrics(log, 0)
+    assert metrics.analysis_frame(log, 0) == "heading"
+    m = metrics.scenario_metrics(log, 0)
     world = {k: v.copy() for k, v in log.items()}
     world["K_gain"][0, 1] += 1e-9
-    assert store.analysis_frame(world, 0) == "world"
-    mw = store.scenario_metrics(world, 0)
+    assert metrics.analysis_frame(world, 0) == "world"
+    mw = metrics.scenario_metrics(world, 0)
     assert m["cov_x_heldout"] >= 0.9 and m["cov_y_heldout"] >= 0.9
     assert mw["cov_x_heldout"] < 0.2

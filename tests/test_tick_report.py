@@ -4,7 +4,7 @@ own step log, and its tick log shows the controller's invariants."""
 import numpy as np
 import pytest
 
-from hlip_jax import cli, rollout, store, sweep, tick_report
+from hlip_jax import cli, rollout, runner, store, sweep, tick_report
 from hlip_jax.plants.cassie import plant
 
 SWEEP = """
@@ -29,7 +29,7 @@ direction = 90.0
 def test_replay_matches_the_sweep_and_logs_every_tick(tmp_path, capsys):
     sw = sweep.parse_sweep(SWEEP)
     out = tmp_path / "r"
-    store.run_sweep(sw, out, batch=1, with_coverage=False, progress=False)
+    runner.run_sweep(sw, out, batch=1, with_coverage=False, progress=False)
     assert cli.main(["ticks", str(out), "99"]) == 2                 # bad index: exit 2
     assert "allowed: 0..0" in capsys.readouterr().err
     npz, png = tick_report.replay(out, 0)

@@ -1,0 +1,234 @@
+"""Per-scenario metrics of a closed-loop run, from its step log (:mod:`hlip_jax.steplog`).
+
+They fill ``summary.csv`` (:func:`hlip_jax.store.write_summary`); each is computed over the
+scenario's valid pre-impact samples k, i.e. the steps before any failure.
+
+
+* ``rms_track_err``, ``max_track_err`` [m]: distance of the robot COM c_k (x–y) to the path,
+  taken as the polyline through the reference positions r(t_j) of that scenario (the
+  step-sampled path; chord error ≈ L²/(8R), ~3 mm for 0.2 m steps on a 2 m circle).
+* ``rms_pos_err`` [m]: RMS of |c_k − r(t_k)| (time-indexed tracking error, includes lag).
+* ``final_pos_err`` [m]: |c_k − r(t_k)| at the last valid step.
+* ``emax_{x,y}_{c,p,v}``: max |e| per plane and component [m, m, m/s].
+* ``place_err_rms`` [m]: RMS over valid steps of |δu_k|, the foot-placement error (executed
+  step minus the stepping law's step u_HLIP + K e at the same pre-impact error;
+  :func:`hlip_jax.invariant.placement_errors`); ``place_err_along`` [m]: its mean along the path
+  heading (a systematic over- (> 0) or under-step).  0 on the H-LIP plant without step noise.
+* ``cov_{x,y}_inner`` / ``cov_{x,y}_outer``: in-sample coverage bracket of the errors in the
+  mRPI set E of ``e⁺ = (A + BK) e + d`` with W the box of that scenario's own samples of the
+  error system's disturbance d = w + B δu (the S2S disturbance plus the foot-placement error;
+  the errors obey this recursion exactly, so a run started at e = 0 is covered in-sample
+  whenever its W contains the origin, and the held-out figure is the test); the state is
+  [c, p, v] when the gain acts on c, else [p, v] (see :func:`error_model`).
+* ``cov_{x,y}_heldout``: W and E from the first half of the steps, coverage (outer set) of the
+  errors in the second half.
+* The coverage and E-size metrics are per plane of the scenario's :func:`analysis_frame`:
+  x = sagittal (along the path heading θ_d(t_k)) and y = lateral when the gain is the same in
+  both planes (errors and disturbances rotated step by step,
+  :func:`hlip_jax.invariant.heading_frame`), world x and y otherwise.  ``emax_*`` stay in the
+  world frame.
+* ``e_size_{x,y}``: volume of that in-sample E (outer set; [m²·m/s] on [c, p, v], [m·m/s] on
+  [p, v]): the size of the error tube a gain earns on this run.
+* ``push_peak_err`` [m]: largest COM-to-path distance from the first push's start on
+  (NaN without a push).
+* ``push_recovery_steps``: steps from the first pre-impact sample at or after the first push's
+  start until the COM-to-path distance is within ``RECOVERY_TOL`` (0.15 m) and stays within it
+  to the end of the run (0 if it never left; NaN without a push, after a failure, or when it is
+  not back by the end).
+* ``qp_failures``: valid steps whose MPC QP status is not 1 (solved).
+* ``min_clearance`` [m]: min obstacle clearance over valid steps (inf without obstacles).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hlip_jax import steplog
+
+SUMMARY_METRICS = (
+    "steps", "rms_track_err", "max_track_err", "rms_pos_err", "final_pos_err",
+    "emax_x_c", "emax_x_p", "emax_x_v", "emax_y_c", "emax_y_p", "emax_y_v",
+    "cov_x_inner", "cov_x_outer", "cov_x_heldout", "cov_y_inner", "cov_y_outer", "cov_y_heldout",
+    "qp_failures", "min_clearance", "e_size_x", "e_size_y", "push_peak_err",
+    "push_recovery_steps", "place_err_rms", "place_err_along",
+)
+
+#: COM-to-path distance a pushed robot must return to and stay within [m] (the paper's push
+#: acceptance: back within 0.15 m of the path)
+RECOVERY_TOL = 0.15
+
+
+
+def _seg_dist(P: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Distance of each point P (n, 2) to the polyline through R (m, 2) [same units]."""
+    if R.shape[0] == 1:
+        return np.linalg.norm(P - R[0], axis=1)
+    a, b = R[:-1], R[1:]                       # (m-1, 2)
+    ab = b - a
+    L2 = np.maximum(np.sum(ab * ab, axis=1), 1e-300)
+    ap = P[:, None, :] - a[None]               # (n, m-1, 2)
+    s = np.clip(np.sum(ap * ab[None], axis=2) / L2[None], 0.0, 1.0)
+    d = ap - s[..., None] * ab[None]
+    return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
+
+
+def error_model(log: dict, s: int):
+    """(A, B, K, state slice) of the error dynamics e⁺ = (A + BK) e + w of scenario ``s``.
+
+    A gain that acts on the global position c (non-zero c entry) closes the loop on the full
+    [c, p, v] state; a gain on [p, v] only leaves c integrating (eigenvalue 1: no bounded
+    invariant set in c), so the analysis then uses the 2-state [p, v] system."""
+    A = np.asarray(log["A"][s], np.float64)
+    B = np.asarray(log["B"][s], np.float64)
+    K = np.asarray(log["K_gain"][s], np.float64)
+    if K.shape[-1] == 3 and np.any(K[:, 0] != 0.0):
+        return A, B, K, slice(0, 3)
+    return A[1:, 1:], B[1:], K[:, -2:], slice(1, 3)
+
+
+#: W boxes narrower than this half-width in an axis are widened to it [m or m/s]: a state the
+#: disturbance never reaches (e.g. every axis of a noise-free float64 H-LIP run) would
+#: otherwise give a flat W, for which no mRPI set with an interior exists.
+W_MIN_HALFWIDTH = 1e-6
+
+
+def placement(log: dict, s: int) -> np.ndarray:
+    """(K, 2) foot-placement errors δu_k of scenario ``s`` [m] (NaN where e is)."""
+    from hlip_jax import invariant as inv
+    return inv.placement_errors(log["u_robot"][s], log["u_hlip"][s], log["e"][s],
+                                log["K_gain"][s])
+
+
+def analysis_frame(log: dict, s: int) -> str:
+    """The frame of scenario ``s``'s per-plane error analysis: "heading" (sagittal along the
+    path heading θ_d(t_k), lateral to its left; :func:`hlip_jax.invariant.heading_frame`) when
+    the stepping gain is the same in both planes, else "world" (x, y): a different gain per
+    plane does not commute with the rotation."""
+    K = np.asarray(log["K_gain"][s], np.float64)
+    return "heading" if K.ndim == 1 or np.array_equal(K[0], K[1]) else "world"
+
+
+def error_samples(log: dict, s: int, mask: np.ndarray, du: np.ndarray):
+    """(A, B, K, e, w, wmask) of scenario ``s`` in its analysis frame and state
+    (:func:`analysis_frame`, :func:`error_model`): errors e (K, 2, n), error-system
+    disturbances w (K−1, 2, n) with e_{k+1} = (A + BK) e_k + w_k, and the mask of counted w
+    (both ends in ``mask``); ``du`` (K, 2): the foot-placement errors (:func:`_placement`)."""
+    from hlip_jax import invariant as inv
+    A, B, Kg, sl = error_model(log, s)
+    x = np.asarray(log["x_robot"][s], np.float64)[:, :, sl]     # (K, 2, n)
+    u = np.asarray(log["u_robot"][s], np.float64)
+    e = np.asarray(log["e"][s], np.float64)[:, :, sl]
+    # the error system's disturbance d = w + B δu: w from the robot's own S2S data (same
+    # definition as the log's w), δu its foot-placement error
+    w = steplog.s2s_residual(A, B, x, u)
+    w = w + B[None, None, :] * du[:-1, :, None]
+    if analysis_frame(log, s) == "heading":
+        Acl0 = A + np.outer(B, Kg[0])
+        e, w = inv.heading_frame(np.where(mask[:, None, None], e, 0.0), w,
+                                 np.asarray(log["ref_heading"][s], np.float64), Acl0)
+    return A, B, Kg, e, w, mask[1:] & mask[:-1]
+
+
+def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> dict:
+    """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring); ``du``
+    (K, 2): the scenario's foot-placement errors (:func:`_placement`)."""
+    from hlip_jax import invariant as inv
+    out = {}
+    A, B, Kg, e, w, wmask = error_samples(log, s, mask, du)
+    nK = int(mask.sum())
+    half = nK // 2
+    for p, plane in enumerate("xy"):
+        keys = [f"cov_{plane}_inner", f"cov_{plane}_outer", f"cov_{plane}_heldout",
+                f"e_size_{plane}"]
+        for k in keys:
+            out[k] = math.nan
+        Acl = A + np.outer(B, Kg[p])
+        if wmask.sum() < 1 or not np.all(np.abs(np.linalg.eigvals(Acl)) < 1 - 1e-9):
+            continue
+        try:
+            W = inv.estimate_w(w[:, p], wmask, "box")
+            E = inv.mrpi(Acl, W, min_halfwidth=W_MIN_HALFWIDTH)
+            c = inv.coverage(E, e[:, p], mask)
+            out[keys[0]], out[keys[1]] = c.inner, c.outer
+            out[keys[3]] = float(E.volume())
+            tr = wmask & (np.arange(wmask.size) + 1 < half)
+            te = mask & (np.arange(mask.size) >= half)
+            if tr.sum() >= 1 and te.sum() >= 1:
+                Wt = inv.estimate_w(w[:, p], tr, "box")
+                Et = inv.mrpi(Acl, Wt, min_halfwidth=W_MIN_HALFWIDTH)
+                out[keys[2]] = inv.coverage(Et, e[:, p], te).outer
+        except Exception:   # degenerate W (e.g. a single sample): leave NaN
+            continue
+    return out
+
+
+def push_recovery(d_path: np.ndarray, t: np.ndarray, t_push: float, failed: bool,
+                  tol: float = RECOVERY_TOL) -> tuple[float, float]:
+    """(peak distance, steps to recover) after a push starting at ``t_push`` [s], from the
+    COM-to-path distances ``d_path`` [m] at the valid pre-impact times ``t`` [s] (module
+    docstring); ``failed``: the run ended in a failure (no recovery counted)."""
+    after = np.flatnonzero(t >= t_push - 1e-9)
+    if after.size == 0:
+        return math.nan, math.nan
+    d = d_path[after]
+    peak = float(np.max(d))
+    if failed:
+        return peak, math.nan
+    out = np.flatnonzero(d > tol)
+    if out.size == 0:
+        return peak, 0.0
+    if out[-1] == d.size - 1:             # still outside at the end of the run
+        return peak, math.nan
+    return peak, float(out[-1] + 1)
+
+
+def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
+                     push_time: float | None = None) -> dict:
+    """Summary metrics of scenario ``s`` of a log dict (see the module docstring);
+    ``push_time`` [s]: start of the scenario's first push (None: no push)."""
+    mask = steplog.alive(log["valid"][s])       # steps before any failure
+    n = int(mask.sum())
+    m = {k: math.nan for k in SUMMARY_METRICS}
+    m["steps"] = n
+    m["qp_failures"] = int(np.sum(mask & (np.asarray(log["qp_status"][s]) != 1)))
+    clr = np.asarray(log["clearance"][s], np.float64)[mask]
+    m["min_clearance"] = float(np.min(clr)) if clr.size else math.inf
+    if n == 0:
+        return m
+    c = np.asarray(log["x_robot"][s], np.float64)[mask][:, :, 0]   # (n, 2) COM x, y
+    r = np.asarray(log["ref_pos"][s], np.float64)[mask]
+    d_time = np.linalg.norm(c - r, axis=1)
+    d_path = _seg_dist(c, r)
+    m["rms_track_err"] = float(np.sqrt(np.mean(d_path ** 2)))
+    m["max_track_err"] = float(np.max(d_path))
+    m["rms_pos_err"] = float(np.sqrt(np.mean(d_time ** 2)))
+    m["final_pos_err"] = float(d_time[-1])
+    if push_time is not None:
+        t = np.asarray(log["t_plant"][s], np.float64)[mask]        # pushes act on the plant clock
+        m["push_peak_err"], m["push_recovery_steps"] = push_recovery(
+            d_path, t, push_time, failed=int(np.asarray(log["status"][s])) != 0)
+    du_all = placement(log, s)                                       # (K, 2)
+    du = du_all[mask]
+    h = np.asarray(log["ref_heading"][s], np.float64)[mask]
+    m["place_err_rms"] = float(np.sqrt(np.mean(np.sum(du ** 2, axis=1))))
+    m["place_err_along"] = float(np.mean(np.cos(h) * du[:, 0] + np.sin(h) * du[:, 1]))
+    e = np.abs(np.asarray(log["e"][s], np.float64)[mask])            # (n, 2, 3)
+    for p, plane in enumerate("xy"):
+        for j, comp in enumerate("cpv"):
+            m[f"emax_{plane}_{comp}"] = float(np.max(e[:, p, j]))
+    if with_coverage:
+        m.update(_coverage_metrics(log, s, mask, du_all))
+    return m
+
+
+
+def active_pushes(cfg) -> list:
+    """The scenario's pushes that act (positive force and duration)."""
+    return [p for p in cfg.disturbance.pushes if p.force > 0 and p.duration > 0]
+
+
+def first_push(cfg) -> float | None:
+    pushes = active_pushes(cfg)
+    return min(p.time for p in pushes) if pushes else None

@@ -1,0 +1,288 @@
+"""The run loop of a sweep: chunks of scenarios simulated one compiled call at a time, each
+stored as soon as it is done (:mod:`hlip_jax.store`), resume of an interrupted run, and the
+progress line (scenarios done, rate, ETA, and the walking step reached inside the running
+chunk through :mod:`hlip_jax.progress`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from hlip_jax import metrics, progress, store
+from hlip_jax import sweep as sweep_mod
+
+
+@dataclasses.dataclass
+class RunResult:
+    out_dir: Path
+    n_scenarios: int
+    n_chunks: int
+    chunks_run: int          # simulated in this call
+    chunks_skipped: int      # already present (resume)
+    complete: bool
+    seconds: float
+
+
+class Progress:
+    """Plain-text progress on a stream: scenarios done/total, rate, ETA."""
+
+    def __init__(self, total: int, label: str, stream=None, enabled: bool = True):
+        self.total, self.label, self.enabled = total, label, enabled
+        self.stream = stream if stream is not None else sys.stderr
+        self.t0 = time.monotonic()
+        self.done0 = None
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+
+    def note(self, text: str) -> None:
+        """One line of news (a bad chunk found on resume) on the stream, even when the
+        progress itself is off: a repair is worth saying."""
+        self.stream.write(f"[{self.label}] {text}\n")
+        self.stream.flush()
+
+    def update(self, done: int, note: str = "") -> None:
+        if not self.enabled:
+            return
+        if self.done0 is None:
+            self.done0, self.t0 = done, time.monotonic()
+            rate_s, eta_s = "-", "-"
+        else:
+            dt = time.monotonic() - self.t0
+            rate = (done - self.done0) / dt if dt > 0 else 0.0
+            rate_s = f"{rate:.2f}/s" if rate else "-"
+            eta_s = f"{(self.total - done) / rate:.0f}s" if rate > 0 else "-"
+        pct = 100.0 * done / max(self.total, 1)
+        msg = (f"[{self.label}] {done}/{self.total} scenarios ({pct:3.0f}%)  rate {rate_s}  "
+               f"ETA {eta_s}{'  ' + note if note else ''}")
+        if self.tty:
+            self.stream.write("\r" + msg.ljust(79))
+            if done >= self.total:
+                self.stream.write("\n")
+        else:
+            self.stream.write(msg + "\n")
+        self.stream.flush()
+
+
+def default_batch(n: int, cap: int | None = None) -> int:
+    """Chunk size for ``n`` scenarios: at most ``cap`` (16 on CPU, 1024 on accelerators) and
+    balanced, ceil(n / ceil(n / cap)), so the padded last chunk wastes little (20 → 10 + 10)."""
+    if cap is None:
+        try:
+            import jax
+            cap = 16 if jax.default_backend() == "cpu" else 1024
+        except Exception:   # pragma: no cover
+            cap = 16
+    n_chunks = max(1, math.ceil(n / cap))
+    return max(1, math.ceil(n / n_chunks))
+
+
+def _default_simulate(configs):
+    """The closed loop with sweep-wide array shapes, so every chunk reuses one compile."""
+    from hlip_jax import rollout
+    shapes = rollout.shapes_of(configs)
+    return functools.partial(rollout.simulate, shapes=shapes)
+
+
+def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resume: bool = False,
+              overwrite: bool = False, simulate: Callable | None = None,
+              max_chunks: int | None = None, progress: bool = True, stream=None,
+              with_coverage: bool = True) -> RunResult:
+    """Simulate every scenario of ``sw`` chunk by chunk into ``out_dir``.
+
+    Args:
+      sw: the validated sweep (:func:`hlip_jax.sweep.load_sweep`).
+      out_dir: results directory (created).
+      batch: scenarios per chunk (one ``simulate`` call); default :func:`default_batch`,
+        capped at the number of scenarios.  On resume, the manifest's value unless given.
+      resume: skip chunks already stored (config hash must match); every stored chunk is
+        verified in full (:func:`store.chunk_problem`) and a bad one is simulated again, named on
+        the progress stream.
+      overwrite: discard an existing run in ``out_dir`` (its manifest, chunks, summary).
+      simulate: ``configs -> Log`` (default :func:`hlip_jax.rollout.simulate`).
+      max_chunks: stop after simulating this many chunks (interruptions, tests).
+      with_coverage: compute the invariant-set coverage metrics per scenario (≈ 30 ms per
+        scenario on a CPU core after a one-time JIT warm-up; False leaves those columns NaN,
+        for very large sweeps).  Part of the config hash.
+    Raises:
+      store.StoreError: the directory holds another run (or a different config, on resume), another
+        process is running into it (:func:`store.results_lock`), or it cannot be created or written.
+    """
+    out = Path(out_dir)
+    configs = list(sw.scenarios)
+    if not configs:
+        raise store.StoreError("the sweep expands to no scenarios")
+    with store.results_lock(out):
+        return _run_locked(sw, out, configs, batch, resume, overwrite, simulate, max_chunks,
+                           Progress(len(configs), sw.name, stream=stream, enabled=progress),
+                           with_coverage)
+
+
+def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, chash: str,
+                    batch: int, with_coverage: bool) -> dict | None:
+    """Refuse a run into a directory holding another one (or resuming a different config);
+    with ``overwrite``, delete the old run.  Returns the manifest to continue, or None."""
+    if old is not None and not (resume or overwrite):
+        state = "complete" if old.get("status") == "complete" else "incomplete"
+        raise store.StoreError(f"{out} already holds a run ({state}); pass --resume to continue it, "
+                         f"--overwrite to discard it, or choose another --out")
+    if old is not None and resume and old.get("config_hash") != chash:
+        why = ("the chunk size differs (manifest batch "
+               f"{old.get('batch')}, now {batch})" if old.get("batch") != batch
+               else "the coverage setting differs (--no-coverage)"
+               if old.get("with_coverage", True) != with_coverage
+               else "the expanded sweep config differs")
+        raise store.StoreError(f"refusing to resume {out}: {why}; config hash {chash[:12]} vs "
+                         f"{str(old.get('config_hash'))[:12]} in {store.MANIFEST}")
+    if old is not None and overwrite and not resume:
+        for f in store.chunk_files(out):
+            f.unlink()
+        for name in (store.SUMMARY, store.COVERAGE, store.MANIFEST):
+            (out / name).unlink(missing_ok=True)
+        return None
+    return old if resume else None
+
+
+def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_coverage: bool) -> dict:
+    """The manifest of a fresh run (before the environment and status fields)."""
+    return {
+        "format": 1,
+        "sweep_name": sw.name,
+        "sweep_file": sw.source,
+        "sweep_text": sw.text,
+        "description": sw.description,
+        "axes": [{"fields": list(a.fields), "values": [list(v) for v in a.values],
+                  "zipped": a.zipped} for a in sw.axes],
+        "paths": list(sw.paths),
+        "n_scenarios": len(configs),
+        "total_before_limit": sw.total,
+        "batch": batch,
+        "with_coverage": with_coverage,
+        "n_chunks": n_chunks,
+        "config_hash": chash,
+        "configs": [sweep_mod.config_to_dict(c) for c in configs],
+    }
+
+
+def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_chunks, bar,
+                with_coverage) -> RunResult:
+    """:func:`run_sweep` with the directory lock held."""
+    n = len(configs)
+    old = store.read_manifest(out) if (out / store.MANIFEST).is_file() else None
+    if batch is None:
+        batch = int(old["batch"]) if (resume and old is not None) else default_batch(n)
+    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+        raise store.StoreError(f"--batch: expected an integer >= 1, got {batch!r}")
+    batch = min(batch, n)
+    extra = {"batch": batch} if with_coverage else {"batch": batch, "coverage": False}
+    chash = sweep_mod.config_hash(configs, extra)
+    old = _check_existing(out, old, resume, overwrite, chash, batch, with_coverage)
+    ranges = store.chunk_ranges(n, batch)
+    man = dict(old) if old else _new_manifest(sw, configs, batch, len(ranges), chash,
+                                              with_coverage)
+    man.update({"versions": store._versions(), "jax": store._jax_info(), "git_commit": store._git_commit(),
+                "start_time": man.get("start_time") or store._now(), "end_time": None,
+                "status": "running"})
+    man.setdefault("resumed_at", [])
+    if old:
+        man["resumed_at"].append(store._now())
+    try:
+        (out / store.CHUNK_DIR).mkdir(parents=True, exist_ok=True)
+        store._write_manifest(out, man)
+    except OSError as err:
+        raise store.StoreError(f"--out {out}: cannot write the results directory: "
+                         f"{err.strerror or err}") from None
+
+    sim = simulate if simulate is not None else _default_simulate(configs)
+    t0 = time.monotonic()
+    good = _verify_stored(out, ranges, bar)
+    done = sum(b - a for i, (a, b) in enumerate(ranges) if i in good)
+    bar.update(done, "resuming" if done else "compiling")
+    ran = skipped = 0
+    try:
+        ran, skipped, done = _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks,
+                                         with_coverage, good)
+    except BaseException:
+        # interrupted or failed: finished chunks stay; the manifest says the run is incomplete
+        man.update(status="incomplete", end_time=store._now(),
+                   seconds=man.get("seconds", 0.0) + (time.monotonic() - t0))
+        with contextlib.suppress(OSError):    # e.g. the disk is full: the first error counts
+            store._write_manifest(out, man)
+        raise
+    complete = len(good) == len(ranges)
+    man.update(status="complete" if complete else "incomplete", end_time=store._now(),
+               seconds=man.get("seconds", 0.0) + (time.monotonic() - t0))
+    store._write_manifest(out, man)
+    if complete:
+        store.write_summary(out)
+        store.write_coverage(out)
+    return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0)
+
+
+def _verify_stored(out: Path, ranges, bar) -> set[int]:
+    """Indices of the stored chunks that are sound (:func:`store.chunk_problem`); each stored but
+    bad chunk is named on the progress stream and will be simulated again."""
+    good = set()
+    for i, (a, b) in enumerate(ranges):
+        p = store.chunk_path(out, i)
+        if not p.is_file():
+            continue
+        why = store.chunk_problem(p, a, b)
+        if why is None:
+            good.add(i)
+        else:
+            bar.note(f"{p.name}: {why}; simulating it again")
+    return good
+
+
+def _step_news(bar, done: int, chunk: int, n_chunks: int, every: float = 5.0):
+    """A :mod:`hlip_jax.progress` listener: the walking step reached inside the running chunk,
+    on the progress line at most every ``every`` seconds."""
+    last = [-math.inf]
+
+    def hear(k: int, n_steps: int) -> None:
+        now = time.monotonic()
+        if now - last[0] >= every or k == n_steps:
+            last[0] = now
+            bar.update(done, f"chunk {chunk + 1}/{n_chunks}: step {k}/{n_steps}")
+    return hear
+
+
+def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, good):
+    """Simulate and store every chunk not in ``good`` (verified stored chunk indices, which
+    grows as chunks are written); returns (chunks run, chunks skipped, scenarios done)."""
+    ran = skipped = 0
+    for i, (a, b) in enumerate(ranges):
+        p = store.chunk_path(out, i)
+        if i in good:
+            skipped += 1
+            continue
+        if max_chunks is not None and ran >= max_chunks:
+            break
+        chunk_cfgs = configs[a:b] + [configs[b - 1]] * (batch - (b - a))
+        try:
+            with progress.listening(_step_news(bar, done, i, len(ranges))):
+                log = sim(chunk_cfgs)
+        except (ImportError, NotImplementedError) as err:
+            plants = sorted({c.plant for c in chunk_cfgs})
+            raise store.StoreError(f"the closed loop for plant {', '.join(plants)} is not available: "
+                             f"{type(err).__name__}: {err}") from None
+        arrays = store._log_to_arrays(log, b - a)
+        arrays["index"] = np.arange(a, b, dtype=np.int64)
+        mets = [metrics.scenario_metrics(arrays, s, with_coverage, metrics.first_push(chunk_cfgs[s]))
+                for s in range(b - a)]
+        for k in metrics.SUMMARY_METRICS:
+            arrays[f"metric.{k}"] = np.asarray([m[k] for m in mets], np.float64)
+        store.save_npz_atomic(p, arrays)
+        good.add(i)
+        ran += 1
+        done += b - a
+        bar.update(done)
+    return ran, skipped, done
