@@ -268,7 +268,9 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
             break
         chunk_cfgs = configs[a:b] + [configs[b - 1]] * (batch - (b - a))
         try:
-            with progress.listening(_step_news(bar, done, i, len(ranges))):
+            news = (progress.listening(_step_news(bar, done, i, len(ranges))) if bar.enabled
+                    else contextlib.nullcontext())      # --quiet: no callback compiled in
+            with news:
                 log = sim(chunk_cfgs)
         except (ImportError, NotImplementedError) as err:
             plants = sorted({c.plant for c in chunk_cfgs})
