@@ -30,7 +30,7 @@ import signal
 import sys
 from pathlib import Path
 
-from hlip_jax import resources
+from hlip_jax import plants, resources
 
 EXIT_OK, EXIT_INCOMPLETE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
 PROG = "hlip-sweep"
@@ -101,7 +101,7 @@ def _finite_float(s: str) -> float:
 
 
 def _sweep_overrides(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--plant", choices=("hlip", "cassie"),
+    p.add_argument("--plant", choices=plants.NAMES,
                    help="override the plant of every scenario")
     p.add_argument("--duration", type=_finite_float, metavar="S",
                    help="override the simulated time of every scenario [s]")
@@ -210,7 +210,7 @@ def _load(args):
 
 
 def cmd_run(args) -> int:
-    from hlip_jax import report, runner, store
+    from hlip_jax import report, runner
     sw = _load(args)
     out = Path(args.out) if args.out else Path("results") / sw.name
     try:

@@ -15,6 +15,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
+from hlip_jax import plants
 from hlip_jax.plants.cassie import gaits
 
 INF = float("inf")
@@ -167,7 +168,8 @@ class CassieConfig:
 class ScenarioConfig:
     """Everything one closed-loop run needs.  ``swept`` records the grid values that made it."""
     name: str = "scenario"
-    plant: str = spec("hlip", doc="what executes the steps", choices=("hlip", "cassie"))
+    plant: str = spec("hlip", doc="what executes the steps (hlip_jax.plants registry)",
+                      choices=plants.NAMES)
     seed: int = spec(0, 0, 2**31 - 1, "PRNG seed")
     duration: float = spec(30.0, 0.5, 3600.0, "simulated time", "s")
     hlip: HLIPConfig = field(default_factory=HLIPConfig)

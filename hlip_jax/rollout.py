@@ -32,7 +32,7 @@ import numpy as np
 
 from hlip_jax import hlip, mpc, paths, progress, qp, robust
 from hlip_jax.config import ScenarioConfig
-from hlip_jax.plants import hlip_plant
+from hlip_jax import plants
 from hlip_jax.plants.base import StepCommand
 from hlip_jax.steplog import STATUS_FELL, STATUS_NONFINITE, STATUS_OK, STATUS_QP_FAILED, Log
 
@@ -157,7 +157,7 @@ class Shapes(NamedTuple):
     n_obstacles: int
     n_pushes: int
     t_final: float
-    t_step: float = 0.0      # longest step T_SSP + T_DSP [s] (the Cassie plant's tick budget)
+    t_step: float = 0.0      # longest step span [s] (Plant.step_span; the Cassie tick budget)
 
 
 def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
@@ -169,7 +169,12 @@ def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
         n_obstacles=max((len(c.obstacles) for c in configs), default=0),
         n_pushes=max(1, max(len(c.disturbance.pushes) for c in configs)),
         t_final=max((K + horizon + 2) * (c.hlip.t_ssp + c.hlip.t_dsp) for c in configs),
-        t_step=max(c.hlip.t_ssp + c.hlip.t_dsp for c in configs))
+        t_step=max(_step_span(c) for c in configs))
+
+
+def _step_span(c: ScenarioConfig) -> float:
+    """Longest step of one scenario [s], as its plant counts it (:attr:`plants.Plant.step_span`)."""
+    return plants.load(c.plant).step_span(c)
 
 
 def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=None,
@@ -217,11 +222,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
         path = _path_of(c, t_final, n_samples)
         start = np.array([float(path.x[0]), float(path.y[0])])
         x0 = np.stack([np.array([start[0], 0.0, 0.0]), np.array([start[1], 0.0, 0.0])])
-        if c.plant == "hlip":
-            plant = hlip_plant.make_params(c, n_push)
-        else:
-            from hlip_jax.plants.cassie import plant as cassie_plant  # heavy import, on demand
-            plant = cassie_plant.make_params(c, n_push, t_step=shapes.t_step)
+        plant = plants.load(c.plant).make_params(c, n_push, shapes.t_step)
         rows.append(Scenario(mpc=mp, path=path, gain=stepping_gain(c), z0=c.hlip.z0,
                              t_ssp=c.hlip.t_ssp, t_dsp=c.hlip.t_dsp, x0=x0,
                              n_steps=np.int32(n_steps_of(c)), tube=np.bool_(m.mode == "tube"),
@@ -238,12 +239,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
     settings = qp.Settings(eps_abs=first.mpc.qp_eps, eps_rel=first.mpc.qp_eps,
                            max_iter=first.mpc.qp_max_iter, check_interval=25,
                            adaptive_rho_interval=50)
-    plant_settings = None
-    if first.plant == "cassie":
-        from hlip_jax.plants.cassie import clfqp
-        plant_settings = clfqp.DEFAULT_SETTINGS._replace(
-            max_iter=first.cassie.qp_max_iter, eps_abs=first.cassie.qp_eps,
-            eps_rel=first.cassie.qp_eps)
+    plant_settings = plants.load(first.plant).settings(first)
     return batch, Static(n_steps=K, horizon=horizon, settings=settings, plant=first.plant,
                          plant_settings=plant_settings)
 
@@ -259,18 +255,11 @@ def _preview(path, t_start, T, N):
     return mpc.Preview(pos=ref.position[1:], vel=ref.velocity[1:], heading=ref.heading[:-1])
 
 
-def _plant_module(name: str):
-    if name == "hlip":
-        return hlip_plant
-    from hlip_jax.plants.cassie import plant as cassie_plant
-    return cassie_plant
-
-
 def simulate_one(scn: Scenario, static: Static):
     """One scenario's closed loop (vmap this).  Returns a dict of per-step arrays."""
     N = static.horizon
     O = scn.mpc.obstacles.shape[0]
-    plant = _plant_module(static.plant)
+    plant = plants.load(static.plant)
     A, B = scn.mpc.A, scn.mpc.B
     T = scn.t_ssp + scn.t_dsp
     dt = scn.x0.dtype
@@ -429,9 +418,10 @@ def simulate_ticks(configs: Sequence[ScenarioConfig], index: int, *, n_samples: 
     of arrays (K, ticks per step, ...)))."""
     configs = list(configs)
     cfg = configs[index]
-    if cfg.plant != "cassie":
-        raise ValueError(f"plant: per-tick logs exist for plant = 'cassie' only, scenario "
-                         f"{index} has {cfg.plant!r}")
+    if plants.load(cfg.plant).step_with_log is None:
+        raise ValueError(f"plant: scenario {index}'s plant {cfg.plant!r} keeps no per-tick log; "
+                         f"plants that do: " + ", ".join(
+                             repr(n) for n in plants.NAMES if plants.load(n).step_with_log))
     batch, static = build([cfg], n_samples=n_samples, dtype=dtype, shapes=shapes_of(configs))
     with jax.default_matmul_precision("highest"):
         out = run(batch, static._replace(keep_ticks=True))

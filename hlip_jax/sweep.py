@@ -84,6 +84,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from hlip_jax import config as C
+from hlip_jax import plants
 from hlip_jax.plants.cassie import gaits
 
 __all__ = [
@@ -310,10 +311,6 @@ def _check_path_params(shape: str, params: dict, where: str, loc_of=None) -> dic
     return out
 
 
-#: disturbance fields the Cassie plant has no counterpart for (its model is the model)
-HLIP_ONLY_DISTURBANCES = ("noise_p", "z0", "t_ssp", "t_dsp", "mass")
-
-
 def _cross_checks(cfg: C.ScenarioConfig, where: str) -> None:
     """Checks that involve several fields (single-field ranges live in config.py)."""
     m = cfg.mpc
@@ -323,14 +320,9 @@ def _cross_checks(cfg: C.ScenarioConfig, where: str) -> None:
     if m.step_length_min > m.step_length_max:
         raise SweepError(f"{where}: mpc.step_length_min: {m.step_length_min:g} exceeds "
                          f"mpc.step_length_max = {m.step_length_max:g}; allowed: min <= max")
-    if cfg.plant == "cassie":
-        d, d0 = cfg.disturbance, C.DisturbanceConfig()
-        for f in HLIP_ONLY_DISTURBANCES:
-            if getattr(d, f) != getattr(d0, f):
-                raise SweepError(
-                    f"{where}: disturbance.{f}: {getattr(d, f):g} acts on the H-LIP plant only; "
-                    f"allowed with plant = 'cassie': {getattr(d0, f):g} (Cassie takes "
-                    f"disturbance.noise_v, disturbance.step_error and disturbance.pushes)")
+    problem = plants.check(cfg)
+    if problem:
+        raise SweepError(f"{where}: {problem}")
     T = cfg.hlip.t_ssp + cfg.hlip.t_dsp
     if cfg.duration < 2 * T:
         raise SweepError(f"{where}: duration: {cfg.duration:g} s is shorter than two walking steps "

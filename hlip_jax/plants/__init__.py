@@ -1,0 +1,73 @@
+"""What executes the planned steps: the plant registry.
+
+A plant is a :class:`Plant` record of pure functions (the step-level interface of
+:mod:`hlip_jax.plants.base`) plus what the closed loop and the sweep validator need to know
+about it.  :func:`load` returns a registered plant by name; its error lists the names.  The
+records import their modules on first use, so that naming or validating a plant costs nothing
+(the Cassie plant pulls in MuJoCo XLA).
+
+    plant = plants.load("cassie")
+    params = plant.make_params(cfg, n_push, t_step)
+    state = plant.init(params, x0, u0, stance0, key, heading0)
+    state, result = plant.step(params, state, cmd)           # + plant.settings(cfg) if any
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Callable, NamedTuple, Optional
+
+
+class Plant(NamedTuple):
+    """A plant's functions (all pure; ``init``/``step`` jit- and vmap-able).
+
+    name: the registry name (``plant = "..."`` in a sweep file).
+    make_params: (cfg, n_push, t_step) -> per-scenario params pytree; ``t_step`` is the
+      sweep's longest :attr:`step_span` (so that every chunk has one shape).
+    init: (params, x0 (2, 3), u0 (2,), stance0, key, heading0) -> state.
+    step: (params, state, cmd[, settings]) -> (state, StepResult).
+    step_with_log: like ``step`` and also the per-tick log, or None (no ticks to log).
+    step_span: cfg -> longest walking step of the scenario [s] (static sizes).
+    settings: cfg -> the plant's static solver settings (one compile per value), or None.
+    """
+    name: str
+    make_params: Callable
+    init: Callable
+    step: Callable
+    step_with_log: Optional[Callable]
+    step_span: Callable
+    settings: Callable
+
+
+#: registered plants: name -> module that defines ``PLANT`` (imported on first :func:`load`)
+REGISTRY = {"hlip": "hlip_jax.plants.hlip_plant", "cassie": "hlip_jax.plants.cassie.plant"}
+
+#: names a sweep file may give (the config validator's choices)
+NAMES = tuple(REGISTRY)
+
+
+def load(name: str) -> Plant:
+    """The registered plant ``name``; ValueError listing the names for any other."""
+    if name not in REGISTRY:
+        raise ValueError(f"plant: {name!r} is not a registered plant; registered: "
+                         f"{', '.join(repr(n) for n in NAMES)}")
+    return importlib.import_module(REGISTRY[name]).PLANT
+
+
+def check(cfg) -> Optional[str]:
+    """The plant's own validation of a scenario config: None, or a one-line message naming a
+    field the plant cannot take.  Light: no plant module is imported."""
+    d = cfg.disturbance
+    if cfg.plant == "cassie":
+        from hlip_jax.config import DisturbanceConfig
+        d0 = DisturbanceConfig()
+        for f in HLIP_ONLY_DISTURBANCES:
+            if getattr(d, f) != getattr(d0, f):
+                return (f"disturbance.{f}: {getattr(d, f):g} acts on the H-LIP plant only; "
+                        f"allowed with plant = 'cassie': {getattr(d0, f):g} (Cassie takes "
+                        "disturbance.noise_v, disturbance.step_error and disturbance.pushes)")
+    return None
+
+
+#: disturbance fields the Cassie plant has no counterpart for (its model is the model)
+HLIP_ONLY_DISTURBANCES = ("noise_p", "z0", "t_ssp", "t_dsp", "mass")

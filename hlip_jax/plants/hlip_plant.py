@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hlip_jax.config import ScenarioConfig
+from hlip_jax.plants import Plant
 from hlip_jax.plants.base import StepCommand, StepResult, push_table
 
 
@@ -128,3 +129,14 @@ def step(params: Params, state: State, cmd: StepCommand):
     new = State(x=x_next, u=u_next, time=state.time + params.t_dsp + params.t_ssp, key=key)
     return new, StepResult(x_robot=x_next, u_robot=u_next, failed=failed,
                            duration=params.t_dsp + params.t_ssp)
+
+
+def step_span(cfg: ScenarioConfig) -> float:
+    """A step of the planner's H-LIP lasts T_SSP + T_DSP [s] (the plant's own timing, when it
+    differs, needs no static size)."""
+    return cfg.hlip.t_ssp + cfg.hlip.t_dsp
+
+
+PLANT = Plant(name="hlip", make_params=lambda cfg, n_push, t_step=0.0: make_params(cfg, n_push),
+              init=init, step=step, step_with_log=None, step_span=step_span,
+              settings=lambda cfg: None)

@@ -28,6 +28,7 @@ import mujoco
 import numpy as np
 
 from hlip_jax.plants.cassie.mjx_import import mjx
+from hlip_jax.plants import Plant
 from hlip_jax.plants.base import StepCommand, StepResult, push_table
 from hlip_jax.plants.cassie import clfqp, control, model, outputs, tick
 
@@ -100,6 +101,12 @@ class State(NamedTuple):
     key: jax.Array
 
 
+def step_span(cfg) -> float:
+    """Longest walking step [s] of a scenario before the late-touchdown limit scales it:
+    T_SSP + T_DSP (:func:`tick_budget`)."""
+    return cfg.hlip.t_ssp + cfg.hlip.t_dsp
+
+
 def tick_budget(t_step: float) -> int:
     """Static 1 kHz ticks per step for steps of T_SSP + T_DSP ≤ ``t_step`` [s]: room for the
     latest touchdown (T_DSP + LATE_SSP · T_SSP ≤ LATE_SSP · t_step), rounded up to 10 ms (a
@@ -110,10 +117,10 @@ def tick_budget(t_step: float) -> int:
 def make_params(cfg, n_push: int, t_step: float = 0.0) -> Params:
     """Per-scenario plant data from a :class:`hlip_jax.config.ScenarioConfig`; pushes act on
     the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`).  The tick
-    budget covers steps of ``max(t_step, T_SSP + T_DSP)`` (pass the sweep's longest step so
+    budget covers steps of ``max(t_step, step_span(cfg))`` (pass the sweep's longest span so
     that every chunk has one shape)."""
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
-    ticks = np.zeros(tick_budget(max(t_step, cfg.hlip.t_ssp + cfg.hlip.t_dsp)))
+    ticks = np.zeros(tick_budget(max(t_step, step_span(cfg))))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,
                   gait=make_gait(cfg.cassie), noise_v=np.float64(cfg.disturbance.noise_v),
                   step_error=np.float64(cfg.disturbance.step_error))
@@ -210,3 +217,13 @@ def step(params: Params, state: State, cmd: StepCommand, settings=clfqp.DEFAULT_
     CLF-QP's ADMM settings.  Returns (state, StepResult)."""
     new, res, _ = step_with_log(params, state, cmd, settings)
     return new, res
+
+
+def settings(cfg):
+    """The CLF-QP's static ADMM settings of a scenario (``cassie.qp_max_iter``, ``qp_eps``)."""
+    return clfqp.DEFAULT_SETTINGS._replace(max_iter=cfg.cassie.qp_max_iter,
+                                           eps_abs=cfg.cassie.qp_eps, eps_rel=cfg.cassie.qp_eps)
+
+
+PLANT = Plant(name="cassie", make_params=make_params, init=init, step=step,
+              step_with_log=step_with_log, step_span=step_span, settings=settings)
