@@ -27,6 +27,9 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+import sys
+from pathlib import Path
+
 import jax.numpy as jnp
 import mujoco
 import numpy as np
@@ -36,7 +39,10 @@ import scipy.sparse as sp
 from mujoco import mjx
 
 from hlip_jax import qp
-from hlip_jax.plants.cassie import clfqp, control, cpu_reference, dynamics, outputs
+from hlip_jax.plants.cassie import clfqp, control, dynamics, outputs
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+import cassie_cpu_reference as cpu_reference  # noqa: E402  (benchmark code, outside the package)
 
 #: (hinge offsets [rad], velocity noise [m/s, rad/s], seed) of the compared states
 STATES = {"calm": (0.0, 0.05, 1), "perturbed": (0.01, 0.2, 3)}
