@@ -109,13 +109,8 @@ def _sweep_overrides(p: argparse.ArgumentParser) -> None:
                    help="keep only the first N scenarios")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
-        prog=PROG, description="Batch evaluator of H-LIP step planning: run a sweep of "
-        "closed-loop scenarios, store the step-to-step logs, and write a report.")
-    sub = ap.add_subparsers(dest="cmd", metavar="COMMAND")
-    sub.required = True
-
+def _add_run(sub) -> None:
+    """The ``run`` subcommand's parser."""
     r = sub.add_parser("run", help="simulate every scenario of a sweep, then write the report",
                        description="Simulate every scenario of SWEEP chunk by chunk into DIR "
                        "(manifest.json, chunks/, summary.csv), then write the report.")
@@ -141,6 +136,16 @@ def build_parser() -> argparse.ArgumentParser:
                    "process runs this same command, chunks are sharded over all devices of all "
                    "hosts, and process 0 writes DIR and the report")
     r.add_argument("--max-chunks", type=_positive_int, help=argparse.SUPPRESS)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog=PROG, description="Batch evaluator of H-LIP step planning: run a sweep of "
+        "closed-loop scenarios, store the step-to-step logs, and write a report.")
+    sub = ap.add_subparsers(dest="cmd", metavar="COMMAND")
+    sub.required = True
+
+    _add_run(sub)
 
     rp = sub.add_parser("report", help="(re)write the report of a results directory",
                         description="Write DIR/report.html, DIR/report.md and DIR/figures/.")

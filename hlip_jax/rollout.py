@@ -255,52 +255,90 @@ def _preview(path, t_start, T, N):
     return mpc.Preview(pos=ref.position[1:], vel=ref.velocity[1:], heading=ref.heading[:-1])
 
 
+def _plan(scn: Scenario, static: Static, x_start, t_start, stance, prev_plan, step):
+    """One MPC solve from the H-LIP state ``x_start`` at ``t_start`` (absolute step ``step``),
+    warm-started from ``prev_plan``; on failure the previous plan shifted by one step.
+    Returns (plan, solved)."""
+    N, O = static.horizon, scn.mpc.obstacles.shape[0]
+    prev = _preview(scn.path, t_start, scn.t_ssp + scn.t_dsp, N)
+    prev_c = prev_plan.states[:, :, 0]
+    ws = mpc.shift_warm_start(prev_plan, N, O)
+    new = mpc.solve(scn.mpc, x_start, prev, stance, prev_c, static.settings, warm_start=ws,
+                    step0=step)
+    ok = (new.status == qp.SOLVED) | (new.status == qp.SOLVED_INACCURATE)
+    ok = ok & jnp.all(jnp.isfinite(new.u))
+    shifted_u = jnp.concatenate([prev_plan.u[1:], prev_plan.u[-1:]])
+    u = jnp.where(ok, new.u, shifted_u)
+    result = new._replace(u=u, states=mpc.predict(scn.mpc, x_start, u),
+                          z=jnp.where(ok, new.z, ws[0]), y=jnp.where(ok, new.y, ws[1]))
+    return result, ok
+
+
+def _cold_plan(scn: Scenario, N: int) -> mpc.Plan:
+    """The 'previous plan' of the first solve: resting on the start, zero warm start."""
+    O, dt = scn.mpc.obstacles.shape[0], scn.x0.dtype
+    n_var, n_con = 2 * N + O, 2 * N + N * O + O
+    return mpc.Plan(u=jnp.zeros((N, 2), dt), states=jnp.broadcast_to(scn.x0, (N, 2, 3)),
+                    slack=jnp.zeros((), dt), z=jnp.zeros((n_var,), dt),
+                    y=jnp.zeros((n_con,), dt), status=jnp.int32(1), iterations=jnp.int32(0))
+
+
+def _finish(out: dict, ok0) -> dict:
+    """Per-run status and first failed step from the per-step flags; e = x_R − x_H."""
+    failed_steps = out.pop("failed_now")
+    nonfinite = out.pop("nonfinite")
+    qp_failed = out.pop("qp_failed")
+    any_fail = jnp.any(failed_steps)
+    fail_step = jnp.where(any_fail, jnp.argmax(failed_steps), -1)
+    status = jnp.where(jnp.any(nonfinite), STATUS_NONFINITE,
+                       jnp.where(any_fail, STATUS_FELL,
+                                 jnp.where(jnp.any(qp_failed) | ~ok0, STATUS_QP_FAILED, STATUS_OK)))
+    # w_k needs the robot at k+1: valid only when step k+1 is valid too
+    out["e"] = out["x_robot"] - out["x_hlip"]
+    out["status"] = status
+    out["fail_step"] = fail_step
+    return out
+
+
+class Carry(NamedTuple):
+    """The closed loop's scan carry at SSP⁻_k (see the module doc for the timeline)."""
+    x_h: jax.Array        # (2, 3) H-LIP state
+    u_h: jax.Array        # (2,) H-LIP step placed at SSP⁻_k [m]
+    x_r: jax.Array        # (2, 3) robot state
+    u_r: jax.Array        # (2,) robot step placed at SSP⁻_k [m]
+    plan: mpc.Plan        # the MPC plan that chose u_h
+    pstate: object        # the plant's state
+    alive: jax.Array      # bool: not fallen
+    qp_ok: jax.Array      # bool: every MPC solve so far succeeded
+    t_plant: jax.Array    # the plant's clock [s]
+
+
+def _plant_step(plant, scn: Scenario, static: Static, pstate, cmd):
+    """One walking step of the plant: (state, StepResult, per-tick log or None)."""
+    if static.keep_ticks:
+        return plant.step_with_log(scn.plant, pstate, cmd, static.plant_settings)
+    if static.plant_settings is None:
+        return (*plant.step(scn.plant, pstate, cmd), None)
+    return (*plant.step(scn.plant, pstate, cmd, static.plant_settings), None)
+
+
 def simulate_one(scn: Scenario, static: Static):
     """One scenario's closed loop (vmap this).  Returns a dict of per-step arrays."""
-    N = static.horizon
-    O = scn.mpc.obstacles.shape[0]
     plant = plants.load(static.plant)
     A, B = scn.mpc.A, scn.mpc.B
     T = scn.t_ssp + scn.t_dsp
     dt = scn.x0.dtype
 
     def plan(x_start, t_start, stance, prev_plan, step):
-        prev = _preview(scn.path, t_start, T, N)
-        prev_c = prev_plan.states[:, :, 0]
-        ws = mpc.shift_warm_start(prev_plan, N, O)
-        new = mpc.solve(scn.mpc, x_start, prev, stance, prev_c, static.settings, warm_start=ws,
-                        step0=step)
-        ok = (new.status == qp.SOLVED) | (new.status == qp.SOLVED_INACCURATE)
-        ok = ok & jnp.all(jnp.isfinite(new.u))
-        # fallback on failure: the previous plan, shifted by one step
-        shifted_u = jnp.concatenate([prev_plan.u[1:], prev_plan.u[-1:]])
-        u = jnp.where(ok, new.u, shifted_u)
-        result = new._replace(u=u, states=mpc.predict(scn.mpc, x_start, u),
-                              z=jnp.where(ok, new.z, ws[0]), y=jnp.where(ok, new.y, ws[1]))
-        return result, ok
+        return _plan(scn, static, x_start, t_start, stance, prev_plan, step)
 
     # initial plan u_H,0.. from x_H,0 (a cold start: previous plan = resting on the start)
     stance0 = jnp.int32(STANCE_RIGHT)
-    n_var, n_con = 2 * N + O, 2 * N + N * O + O
-    cold = mpc.Plan(u=jnp.zeros((N, 2), dt), states=jnp.broadcast_to(scn.x0, (N, 2, 3)),
-        slack=jnp.zeros((), dt), z=jnp.zeros((n_var,), dt), y=jnp.zeros((n_con,), dt),
-        status=jnp.int32(1), iterations=jnp.int32(0))
-    plan0, ok0 = plan(scn.x0, jnp.zeros((), dt), stance0, cold, 0)
+    plan0, ok0 = plan(scn.x0, jnp.zeros((), dt), stance0, _cold_plan(scn, static.horizon), 0)
     u_h0 = plan0.u[0]
     u_r0 = u_h0  # x_R,0 = x_H,0
     heading0 = paths.reference(scn.path, jnp.zeros((), dt)).heading
     pstate = plant.init(scn.plant, scn.x0, u_r0, stance0, scn.key, heading0)
-
-    class Carry(NamedTuple):
-        x_h: jax.Array
-        u_h: jax.Array
-        x_r: jax.Array
-        u_r: jax.Array
-        plan: mpc.Plan
-        pstate: object
-        alive: jax.Array
-        qp_ok: jax.Array
-        t_plant: jax.Array
 
     def body(carry: Carry, k):
         t_k = k.astype(dt) * T
@@ -317,14 +355,7 @@ def simulate_one(scn: Scenario, static: Static):
         cmd = StepCommand(t=t_k, stance=stance_k, x_hlip=carry.x_h, u_hlip=carry.u_h,
                           x_hlip_next=x_h_next, u_hlip_next=u_h_next, gain=scn.gain,
                           heading=heading_next, t_ssp=scn.t_ssp, t_dsp=scn.t_dsp, z0=scn.z0)
-        ticks = None
-        if static.keep_ticks:
-            pnext, res, ticks = plant.step_with_log(scn.plant, carry.pstate, cmd,
-                                                    static.plant_settings)
-        elif static.plant_settings is None:
-            pnext, res = plant.step(scn.plant, carry.pstate, cmd)
-        else:
-            pnext, res = plant.step(scn.plant, carry.pstate, cmd, static.plant_settings)
+        pnext, res, ticks = _plant_step(plant, scn, static, carry.pstate, cmd)
         ref = paths.reference(scn.path, t_k)
         obs = scn.mpc.obstacles
         gap = jnp.linalg.norm(carry.x_r[:, 0][None, :] - obs[:, :2], axis=-1) - obs[:, 3]
@@ -361,19 +392,7 @@ def simulate_one(scn: Scenario, static: Static):
 
     final, out = jax.lax.scan(body_with_news if static.progress else body, carry0,
                               jnp.arange(static.n_steps))
-    failed_steps = out.pop("failed_now")
-    nonfinite = out.pop("nonfinite")
-    qp_failed = out.pop("qp_failed")
-    any_fail = jnp.any(failed_steps)
-    fail_step = jnp.where(any_fail, jnp.argmax(failed_steps), -1)
-    status = jnp.where(jnp.any(nonfinite), STATUS_NONFINITE,
-                       jnp.where(any_fail, STATUS_FELL,
-                                 jnp.where(jnp.any(qp_failed) | ~ok0, STATUS_QP_FAILED, STATUS_OK)))
-    # w_k needs the robot at k+1: valid only when step k+1 is valid too
-    out["e"] = out["x_robot"] - out["x_hlip"]
-    out["status"] = status
-    out["fail_step"] = fail_step
-    return out
+    return _finish(out, ok0)
 
 
 def _run(batch: Scenario, static: Static):
