@@ -354,7 +354,8 @@ def simulate_one(scn: Scenario, static: Static):
         heading_next = paths.reference(scn.path, t_k + T).heading
         cmd = StepCommand(t=t_k, stance=stance_k, x_hlip=carry.x_h, u_hlip=carry.u_h,
                           x_hlip_next=x_h_next, u_hlip_next=u_h_next, gain=scn.gain,
-                          heading=heading_next, t_ssp=scn.t_ssp, t_dsp=scn.t_dsp, z0=scn.z0)
+                          heading=heading_next, t_ssp=scn.t_ssp, t_dsp=scn.t_dsp, z0=scn.z0,
+                          live=active)
         pnext, res, ticks = _plant_step(plant, scn, static, carry.pstate, cmd)
         ref = paths.reference(scn.path, t_k)
         obs = scn.mpc.obstacles

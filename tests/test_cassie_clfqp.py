@@ -222,3 +222,26 @@ def test_batch_of_32_with_random_offsets_stands(cassie, stand_chunk):
         assert np.all(log.pelvis_z[:, -1] > 0.85), log.pelvis_z[:, -1]
         assert np.all(np.abs(log.rpy[:, -1, :2]) < 0.1)
         assert np.all(np.abs(log.com[:, -1, 2] - target[:, 2]) < 0.03)
+
+
+def test_idle_ticks_solve_a_trivial_qp_at_the_first_check():
+    """A tick that does not act (after touchdown, after a fall) hands the solver min ½|x|²
+    with free rows from a zero start: it is done at the first convergence check, so in a
+    vmapped batch it never holds up the robots that act; an acting tick's problem and warm
+    start pass unchanged (bit for bit)."""
+    rng = np.random.default_rng(0)
+    n, m = 11, 20
+    G = rng.normal(size=(n, n))
+    prob = clfqp.Problem(P=jnp.asarray(G @ G.T + n * np.eye(n)), q=jnp.asarray(rng.normal(size=n)),
+                         A=jnp.asarray(rng.normal(size=(m, n))), l=-jnp.ones(m), u=jnp.ones(m),
+                         V=jnp.zeros(()), Vdot_free=jnp.zeros(()), LgV_A=jnp.zeros(n - 1))
+    warm = (jnp.asarray(rng.normal(size=n)), jnp.asarray(rng.normal(size=m)))
+    P, q, l, u, w = clfqp.idle(prob, warm, jnp.bool_(True))
+    for a, b in ((P, prob.P), (q, prob.q), (l, prob.l), (u, prob.u), (w[0], warm[0]), (w[1], warm[1])):
+        assert np.array_equal(np.asarray(a), np.asarray(b))
+    P, q, l, u, w = clfqp.idle(prob, warm, jnp.bool_(False))
+    settings = clfqp.DEFAULT_SETTINGS
+    sol = qp.solve(P, q, prob.A, l, u, settings=settings, warm_start=w)
+    assert int(sol.status) == qp.SOLVED
+    assert int(sol.iterations) <= settings.check_interval
+    np.testing.assert_allclose(np.asarray(sol.x), 0.0, atol=1e-12)

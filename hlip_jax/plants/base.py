@@ -42,6 +42,8 @@ class StepCommand(NamedTuple):
     t_ssp: jax.Array        # the planner's H-LIP phase durations [s] and COM height [m]
     t_dsp: jax.Array
     z0: jax.Array
+    live: jax.Array = np.bool_(True)  # the step counts (robot standing, within the scenario's
+                                      # steps); a plant may idle through a step that does not
 
 
 class StepResult(NamedTuple):

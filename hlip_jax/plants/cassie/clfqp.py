@@ -164,21 +164,40 @@ class Result(NamedTuple):
     warm: tuple           # (x, y) for the next tick
 
 
+def idle(prob: Problem, warm, active):
+    """(P, q, l, u, warm) of the QP actually handed to the solver: ``prob`` and ``warm`` while
+    ``active``, else min ½|x|² with free rows from a zero start — solved at the first
+    convergence check.  In a vmapped batch the ADMM loop runs until every problem is done, so a
+    robot whose tick does not act (a fallen robot, the idle ticks after a step's touchdown)
+    would otherwise hold up the whole batch with a problem of no consequence."""
+    n, m = prob.P.shape[0], prob.l.shape[0]
+    dt = prob.P.dtype
+    P = jnp.where(active, prob.P, jnp.eye(n, dtype=dt))
+    q = jnp.where(active, prob.q, 0.0)
+    l = jnp.where(active, prob.l, -qp.INF_BOUND)
+    u = jnp.where(active, prob.u, qp.INF_BOUND)
+    w = (jnp.where(active, warm[0], 0.0), jnp.where(active, warm[1], 0.0))
+    return P, q, l, u, w
+
+
 def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
-          settings: qp.Settings = DEFAULT_SETTINGS, fallback=False) -> Result:
+          settings: qp.Settings = DEFAULT_SETTINGS, fallback=False, active=True) -> Result:
     """Build and solve the CLF-QP; ``warm`` = (x, y) from the previous tick (zeros at start).
 
     ``fallback`` (bool or traced boolean scalar): when the QP is not solved, return the previous
     tick's solution instead of the clipped last iterate (per scenario while walking:
-    ``CassieConfig.qp_fallback``; standing push recovery does better with the iterate)."""
+    ``CassieConfig.qp_fallback``; standing push recovery does better with the iterate).
+    ``active`` false (traced boolean): the tick's torques are not used; a trivial QP is solved
+    instead (:func:`idle`) and the result carries ``warm`` unchanged."""
     prob = build(meas, des, cond, contact, tau_min, tau_max, gains)
-    sol = qp.solve(prob.P, prob.q, prob.A, prob.l, prob.u, settings=settings, warm_start=warm)
+    P, q, l, u, w = idle(prob, warm, active)
+    sol = qp.solve(P, q, prob.A, l, u, settings=settings, warm_start=w)
     # with ``fallback`` a problem the ADMM budget did not solve (typically infeasible contact
     # rows at an impact) keeps the previous tick's torques instead of an unconverged iterate;
     # without it only a non-finite iterate falls back
     finite = jnp.all(jnp.isfinite(sol.x)) & jnp.all(jnp.isfinite(sol.y))
     solved = (sol.status == qp.SOLVED) | (sol.status == qp.SOLVED_INACCURATE)
-    ok = finite & (solved | jnp.logical_not(fallback))
+    ok = finite & (solved | jnp.logical_not(fallback)) & active
     x = jnp.where(ok, sol.x, warm[0])
     y = jnp.where(ok, sol.y, warm[1])
     nu = prob.P.shape[0] - 1

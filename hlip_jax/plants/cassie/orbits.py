@@ -150,7 +150,8 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
                           x_hlip=jnp.asarray(x_h), u_hlip=jnp.asarray(u_h.T),
                           x_hlip_next=jnp.asarray(x_h_next), u_hlip_next=jnp.asarray(u_h_next.T),
                           gain=jnp.asarray(gain), heading=jnp.asarray(heading_next),
-                          t_ssp=jnp.asarray(t_ssp), t_dsp=jnp.asarray(t_dsp), z0=jnp.asarray(z0))
+                          t_ssp=jnp.asarray(t_ssp), t_dsp=jnp.asarray(t_dsp), z0=jnp.asarray(z0),
+                          live=jnp.ones(B, bool))
         state, res, tlog = batch_step(params, state, cmd)
         if return_ticks:
             ticks.append(jax.tree.map(np.asarray, tlog))

@@ -189,7 +189,8 @@ def _first_tick(ctx: tick.Context, state: State) -> tick.TickState:
                           phase=jnp.where(ctx.cmd.t_dsp > 0, tick.DSP, tick.SSP).astype(jnp.int32),
                           t_phase=zero, t_step=zero, sw_start=jnp.zeros(3, dt), sw_yaw0=zero,
                           sw_offset=jnp.zeros(2, dt), u_last=ctx.cmd.u_hlip_next,
-                          touch=jnp.zeros((), jnp.int32), fell=jnp.bool_(False))
+                          touch=jnp.zeros((), jnp.int32),
+                          fell=~jnp.asarray(ctx.cmd.live, bool))   # a dead step idles throughout
 
 
 def step_with_log(params: Params, state: State, cmd: StepCommand,

@@ -267,7 +267,13 @@ def clf_qp(ctx: Context, s: TickState, terms, cts: Contacts, des: outputs.Desire
     meas = outputs.measure(terms, s.d.qvel, c.index.root_dof)
     cond = dynamics.condense(terms, c.actuation, cts.sites, dynamics.spring_dofs(c))
     return clfqp.solve(meas, des, cond, cts.sites, lo, hi, ctx.gait.gains, s.warm, settings,
-                       fallback=ctx.gait.hold_unsolved > 0.5), meas, cond
+                       fallback=ctx.gait.hold_unsolved > 0.5, active=running(s)), meas, cond
+
+
+def running(s: TickState) -> jax.Array:
+    """Whether this tick acts: the step has not ended and the robot has not fallen (the other
+    ticks of the static budget leave the state as it is)."""
+    return (s.phase != DONE) & ~s.fell
 
 
 def physics(ctx: Context, s: TickState, tau) -> mjx.Data:
@@ -283,7 +289,7 @@ def advance(ctx: Context, s: TickState, cts: Contacts, u_des, res, d_new) -> Tic
     """Keep the new state while the step runs; DSP → SSP after T_DSP; SSP → done at the
     detected touchdown or at LATE_SSP · T_SSP."""
     dt_c = control.CONTROL_DT
-    run = (s.phase != DONE) & ~s.fell
+    run = running(s)
     keep = lambda a, b: jnp.where(run, a, b)
     d = jax.tree.map(keep, d_new, s.d)
     warm = jax.tree.map(keep, res.warm, s.warm)
