@@ -34,7 +34,7 @@ import numpy as np
 from hlip_jax import steplog
 # the set types and the mRPI construction live in hlip_jax.sets; re-exported for the analysis API
 from hlip_jax.sets import (MRPI, Box, Hull, TemplatePolytope, Zonotope,  # noqa: F401
-                           _f64, _hull_from_points, _hpoly_vertices, mrpi, truncated_sum,
+                           _f64, _hull_from_points, _hpoly_vertices, mrpi, schur_stable, truncated_sum,
                            vertices, zonotope, zonotope_halfspaces)
 
 # ---------------------------------------------------------------------------------------------

@@ -158,10 +158,10 @@ def _rows(table, steps):
     return table[jnp.clip(steps, 0, table.shape[0] - 1)]
 
 
-def _step_tightening(params: MPCParams, heading, steps):
-    """(N,) each: the largest stepping-law correction K e_m along the heading θ_j and across it
-    (support of K F_m, m the absolute step the row places); both sides of the row shrink by it."""
-    c, s = jnp.cos(heading), jnp.sin(heading)
+def _step_tightening(params: MPCParams, heading, c, s, steps):
+    """(N,) each: the largest stepping-law correction K e_m along the heading θ_j (direction
+    (c, s) = (cos θ_j, sin θ_j)) and across it (support of K F_m, m the absolute step the row
+    places); both sides of the row shrink by it."""
     b = _rows(params.e_u, steps)
     return (_support_c(params, c, s, heading, b), _support_c(params, -s, c, heading, b))
 
@@ -213,7 +213,7 @@ def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c, step0=0):
     stance = (stance0 + jnp.arange(N)) % 2
     sigma = jnp.where(stance == 1, 1.0, -1.0).astype(dt)
     ones = jnp.ones((N,), dt)
-    tl, tw = _step_tightening(params, preview.heading, step0 + jnp.arange(N))   # U ⊖ K F_m
+    tl, tw = _step_tightening(params, preview.heading, cth, sth, step0 + jnp.arange(N))  # U ⊖ KF_m
     l_len, u_len = params.length_min * ones - len0 + tl, params.length_max * ones - len0 - tl
     l_wid = jnp.where(sigma > 0, params.width_min, -params.width_max) * ones - wid0 + tw
     u_wid = jnp.where(sigma > 0, params.width_max, -params.width_min) * ones - wid0 - tw

@@ -574,6 +574,12 @@ def default_directions(n: int, count: Optional[int] = None) -> np.ndarray:
     return np.concatenate([axes, D])
 
 
+def schur_stable(A_cl, margin: float = 1e-9) -> bool:
+    """Whether every eigenvalue of ``A_cl`` lies inside the circle of radius 1 − ``margin``
+    (the error system then has a bounded invariant set)."""
+    return bool(np.all(np.abs(np.linalg.eigvals(_f64(A_cl))) < 1 - margin))
+
+
 def _check_acl(A_cl, n: int) -> np.ndarray:
     A = _f64(A_cl)
     if A.ndim == 0 and n == 1:
