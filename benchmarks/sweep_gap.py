@@ -1,0 +1,84 @@
+"""Why a Cassie sweep runs slower than ``hlip-sweep bench``: the same compiled closed loop
+(:func:`hlip_jax.rollout.run`) timed on the benchmark's scenarios and on a shipped sweep's, at
+one batch size and one simulated duration, in one process.
+
+    python benchmarks/sweep_gap.py --batch 256 --duration 2.0 [--sweep sweeps/coverage_study.toml]
+        [--cases sweep bench sweep-qp25] [--json OUT.json]
+
+Cases:
+  sweep       ``batch`` scenarios spread evenly over the sweep file's, duration overridden;
+  bench       the benchmark's straight lines (``hlip_jax.bench.configs``);
+  sweep-qp25  the sweep's scenarios with the CLF-QP's ADMM budget cut to one convergence check
+              (25 iterations): the time it saves is the ADMM iterations' cost in the sweep.
+
+Per case: compile + first call [s], second call [s], simulated robot-seconds per wall-second
+(robots × steps × the H-LIP's T_SSP + T_DSP over the second call), the fraction of robots that
+walked to the end.  Results print as each case finishes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+
+
+def _cases(name, sweep_file, batch, duration):
+    from hlip_jax import bench
+    from hlip_jax.sweep import load_sweep
+
+    if name == "bench":
+        return bench.configs(batch, duration)
+    every = list(load_sweep(sweep_file, duration=duration).scenarios)
+    cfgs = [every[(i * len(every)) // batch % len(every)] for i in range(batch)]  # spread
+    if name == "sweep-qp25":
+        cfgs = [dataclasses.replace(c, cassie=dataclasses.replace(c.cassie, qp_max_iter=25))
+                for c in cfgs]
+    return cfgs
+
+
+def run_case(name, sweep_file, batch, duration):
+    import jax
+    import numpy as np
+
+    from hlip_jax import rollout, steplog
+
+    cfgs = _cases(name, sweep_file, batch, duration)
+    b, static = rollout.build(cfgs)
+    with jax.default_matmul_precision("highest"):
+        t0 = time.perf_counter()
+        jax.block_until_ready(rollout.run(b, static))
+        t1 = time.perf_counter()
+        out = jax.block_until_ready(rollout.run(b, static))
+        t2 = time.perf_counter()
+    T = np.asarray(b.t_ssp + b.t_dsp)
+    sim = float(np.sum(T) * static.n_steps)
+    walked = float(np.mean(np.asarray(out["status"]) == steplog.STATUS_OK))
+    return dict(case=name, batch=batch, duration=duration, steps=static.n_steps,
+                ticks_per_step=int(b.plant.ticks.shape[-1]), compile_first_s=t1 - t0,
+                run_s=t2 - t1, robot_s_per_s=sim / (t2 - t1), walked=walked,
+                device=jax.devices()[0].device_kind)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--batch", type=int, default=256)
+    ap.add_argument("--duration", type=float, default=2.0)
+    ap.add_argument("--sweep", default="sweeps/coverage_study.toml")
+    ap.add_argument("--cases", nargs="+", default=["sweep", "bench", "sweep-qp25"],
+                    choices=["sweep", "bench", "sweep-qp25"])
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    rows = []
+    for name in a.cases:
+        row = run_case(name, a.sweep, a.batch, a.duration)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        if a.json:
+            with open(a.json, "w") as f:
+                json.dump(rows, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
