@@ -193,15 +193,16 @@ def _first_tick(ctx: tick.Context, state: State) -> tick.TickState:
                           fell=~jnp.asarray(ctx.cmd.live, bool))   # a dead step idles throughout
 
 
-def step_with_log(params: Params, state: State, cmd: StepCommand,
-                  settings=clfqp.DEFAULT_SETTINGS):
-    """:func:`step` that also returns the per-tick log (:class:`tick.TickLog`)."""
+def _prepare(params: Params, state: State, cmd: StepCommand):
+    """(cmd in the state's dtype, next PRNG key, step-noise landing error, tick context)."""
     dt = state.d.qpos.dtype
     cmd = jax.tree.map(lambda a: a.astype(dt) if jnp.issubdtype(a.dtype, jnp.floating) else a, cmd)
     key, f_noise, du_err = _step_noise(params, state, cmd.t_ssp + cmd.t_dsp, dt)
-    ctx = _context(params, state, cmd, f_noise, du_err)
-    s, log = jax.lax.scan(lambda s, _: tick.tick(ctx, s, settings), _first_tick(ctx, state),
-                          None, length=params.ticks.shape[0])
+    return cmd, key, du_err, _context(params, state, cmd, f_noise, du_err)
+
+
+def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState, key, du_err):
+    """(plant state at SSP⁻_{k+1}, StepResult) from the last tick state of the step."""
     terms = model.robot_terms(cassie(), s.d, ctx.mx)
     x_r, st_xy = tick.robot_state(terms, ctx.new_st)
     sw_xy = jnp.where(ctx.sw == 0, terms.ankle[0, :2], terms.ankle[1, :2])
@@ -210,14 +211,41 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
                 yaw=outputs.wrap(cmd.heading), land_xy=st_xy + s.u_last + s.sw_offset + du_err,
                 key=key)
     return new, StepResult(x_robot=x_r, u_robot=sw_xy - st_xy, failed=failed,
-                           duration=s.t_step), log
+                           duration=s.t_step)
+
+
+def step_with_log(params: Params, state: State, cmd: StepCommand,
+                  settings=clfqp.DEFAULT_SETTINGS):
+    """:func:`step` that also returns the per-tick log (:class:`tick.TickLog`, one row per
+    tick of the static budget; the rows after the step's end repeat its final state)."""
+    cmd, key, du_err, ctx = _prepare(params, state, cmd)
+    s, log = jax.lax.scan(lambda s, _: tick.tick(ctx, s, settings), _first_tick(ctx, state),
+                          None, length=params.ticks.shape[0])
+    return (*_finish(state, cmd, ctx, s, key, du_err), log)
 
 
 def step(params: Params, state: State, cmd: StepCommand, settings=clfqp.DEFAULT_SETTINGS):
     """One walking step SSP⁻_k → SSP⁻_{k+1} (module doc); ``settings`` (static) are the
-    CLF-QP's ADMM settings.  Returns (state, StepResult)."""
-    new, res, _ = step_with_log(params, state, cmd, settings)
-    return new, res
+    CLF-QP's ADMM settings.  Returns (state, StepResult).
+
+    The ticks run in a ``lax.while_loop`` that ends when the step is over (touchdown, late
+    limit or fall: :func:`tick.running` false) or at the static budget.  A tick that does not
+    run leaves its state as it is (:func:`tick.advance`), so the result is that of the
+    fixed-length scan of :func:`step_with_log`; but a vmapped batch stops at its slowest
+    robot's touchdown instead of paying the whole budget (T_DSP + 1.2 T_SSP) every step."""
+    cmd, key, du_err, ctx = _prepare(params, state, cmd)
+    budget = params.ticks.shape[0]
+
+    def body(carry):
+        i, s = carry
+        return i + 1, tick.tick(ctx, s, settings)[0]
+
+    def more(carry):
+        i, s = carry
+        return (i < budget) & tick.running(s)
+
+    _, s = jax.lax.while_loop(more, body, (jnp.zeros((), jnp.int32), _first_tick(ctx, state)))
+    return _finish(state, cmd, ctx, s, key, du_err)
 
 
 def settings(cfg):
