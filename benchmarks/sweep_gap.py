@@ -3,7 +3,7 @@
 one batch size and one simulated duration, in one process.
 
     python benchmarks/sweep_gap.py --batch 256 --duration 2.0 [--sweep sweeps/coverage_study.toml]
-        [--cases sweep bench sweep-qp25] [--json OUT.json]
+        [--cases sweep bench sweep-qp25] [--json OUT.json] [--per-step]
 
 Cases:
   sweep       ``batch`` scenarios spread evenly over the sweep file's, duration overridden;
@@ -13,7 +13,9 @@ Cases:
 
 Per case: compile + first call [s], second call [s], simulated robot-seconds per wall-second
 (robots × steps × the H-LIP's T_SSP + T_DSP over the second call), the fraction of robots that
-walked to the end.  Results print as each case finishes.
+walked to the end.  Results print as each case finishes.  With ``--per-step`` each case runs
+once, with the rollout's progress callback compiled in, and prints the wall time at which each
+walking step of the batch finished (the first includes the compile): where a sweep's time goes.
 """
 
 from __future__ import annotations
@@ -61,6 +63,30 @@ def run_case(name, sweep_file, batch, duration):
                 device=jax.devices()[0].device_kind)
 
 
+def per_step(name, sweep_file, batch, duration):
+    """One call with progress news: prints (step, wall time since the call began [s])."""
+    import jax
+    import numpy as np
+
+    from hlip_jax import progress, rollout, steplog
+
+    b, static = rollout.build(_cases(name, sweep_file, batch, duration))
+    t0 = time.perf_counter()
+    last = [t0]
+
+    def heard(k, n):
+        now = time.perf_counter()
+        print(f"{name}: step {k}/{n} at {now - t0:.1f} s (+{now - last[0]:.1f} s)", flush=True)
+        last[0] = now
+
+    with progress.listening(heard), jax.default_matmul_precision("highest"):
+        out = jax.block_until_ready(rollout.run(b, static._replace(progress=True)))
+    status = np.asarray(out["status"])
+    print(f"{name}: done at {time.perf_counter() - t0:.1f} s; walked "
+          f"{np.mean(status == steplog.STATUS_OK):.3f}; fail steps "
+          f"{np.bincount(np.maximum(np.asarray(out['fail_step']), 0))}", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--batch", type=int, default=256)
@@ -69,9 +95,13 @@ def main(argv=None):
     ap.add_argument("--cases", nargs="+", default=["sweep", "bench", "sweep-qp25"],
                     choices=["sweep", "bench", "sweep-qp25"])
     ap.add_argument("--json", default=None)
+    ap.add_argument("--per-step", action="store_true")
     a = ap.parse_args(argv)
     rows = []
     for name in a.cases:
+        if a.per_step:
+            per_step(name, a.sweep, a.batch, a.duration)
+            continue
         row = run_case(name, a.sweep, a.batch, a.duration)
         rows.append(row)
         print(json.dumps(row), flush=True)
