@@ -3,6 +3,7 @@
     hlip-sweep run SWEEP [--out DIR] [--batch N] [--resume] [--overwrite]
                          [--plant hlip|cassie] [--duration S] [--limit N]
                          [--no-report] [--no-coverage] [--quiet]
+                         [--compile-cache DIR | --no-compile-cache]
     hlip-sweep report DIR
     hlip-sweep list
     hlip-sweep show SWEEP [--plant ...] [--duration S] [--limit N]
@@ -13,6 +14,9 @@ or a file-system error such as a full disk while writing chunks; rerun with ``--
 user error (bad sweep file, unusable or busy results directory, refused resume, corrupt chunk)
 with a one-line message and no traceback; 130 interrupted (Ctrl-C) and 143 terminated
 (SIGTERM), both leaving the manifest "incomplete" (rerun with ``--resume``).
+
+``run`` and ``ticks`` keep compiled programs on disk (:mod:`hlip_jax.compile_cache`)
+unless ``--no-compile-cache`` is given, so a rerun starts simulating without a compile.
 
 ``HLIP_SWEEP_SIMULATE=module:function`` replaces the closed loop
 (:func:`hlip_jax.rollout.simulate`) by another function of the same contract — used by tests
@@ -109,6 +113,35 @@ def _sweep_overrides(p: argparse.ArgumentParser) -> None:
                    help="keep only the first N scenarios")
 
 
+def _cache_options(p: argparse.ArgumentParser) -> None:
+    """``--compile-cache DIR`` / ``--no-compile-cache`` of the commands that compile."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--compile-cache", metavar="DIR",
+                   help="directory of the persistent compilation cache (default "
+                   "$HLIP_JAX_CACHE_DIR, else ~/.cache/hlip_jax/xla)")
+    g.add_argument("--no-compile-cache", action="store_true",
+                   help="compile without reading or writing the persistent cache")
+
+
+def _use_cache(args) -> None:
+    """Turn the persistent compilation cache on as the options ask.  A directory given with
+    --compile-cache that cannot be used is a user error; an unusable default directory only
+    turns the cache off (with a note)."""
+    from hlip_jax import compile_cache
+    if getattr(args, "no_compile_cache", True):
+        return
+    if args.compile_cache:
+        try:
+            compile_cache.enable(Path(args.compile_cache))
+        except compile_cache.CacheDirError as err:
+            raise UserError(f"--compile-cache {err}; allowed: a writable directory") from None
+        return
+    try:
+        compile_cache.enable(compile_cache.default_dir())
+    except compile_cache.CacheDirError as err:
+        print(f"{PROG}: note: compilation cache off: {err}", file=sys.stderr)
+
+
 def _add_run(sub) -> None:
     """The ``run`` subcommand's parser."""
     r = sub.add_parser("run", help="simulate every scenario of a sweep, then write the report",
@@ -136,6 +169,7 @@ def _add_run(sub) -> None:
                    "process runs this same command, chunks are sharded over all devices of all "
                    "hosts, and process 0 writes DIR and the report")
     r.add_argument("--max-chunks", type=_positive_int, help=argparse.SUPPRESS)
+    _cache_options(r)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -171,6 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(output errors, torques, contact forces, CLF-QP status, phase).")
     tk.add_argument("dir", metavar="DIR")
     tk.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
+    _cache_options(tk)
 
     sub.add_parser("list", help="list the shipped sweeps", description="List sweeps/*.toml.")
 
@@ -216,6 +251,7 @@ def _load(args):
 
 def cmd_run(args) -> int:
     from hlip_jax import report, runner
+    _use_cache(args)               # before anything compiles: JAX reads it at the first compile
     sw = _load(args)
     out = Path(args.out) if args.out else Path("results") / sw.name
     try:
@@ -320,6 +356,7 @@ def cmd_coverage(args) -> int:
 
 def cmd_ticks(args) -> int:
     from hlip_jax import store, tick_report
+    _use_cache(args)
     d = Path(args.dir)
     if not d.is_dir():
         raise UserError(f"{d}: results directory not found")

@@ -1,11 +1,10 @@
 """Progress news from inside a compiled closed loop.
 
 A chunk of scenarios is one compiled call; without news from inside it a long chunk shows
-nothing until it ends.  The rollout reports each finished walking step through
-:func:`step_done` — a ``jax.debug.callback`` target whose arguments are not batched, so it runs
-once per step of the chunk, not once per scenario — and whoever runs the chunk listens with
-:func:`listening`.  Nothing is compiled in unless someone listens when the loop is built
-(:func:`active`)."""
+nothing until it ends.  While someone listens (:func:`listening`, checked by :func:`active`
+when the chunk starts) the rollout runs its walking steps in segments of one compiled program
+and calls :func:`step_done` from Python after each segment (:func:`hlip_jax.rollout.run`): no
+host callback is compiled into the loop, so the loop's executable can be kept on disk."""
 
 from __future__ import annotations
 

@@ -322,85 +322,131 @@ def _plant_step(plant, scn: Scenario, static: Static, pstate, cmd):
     return (*plant.step(scn.plant, pstate, cmd, static.plant_settings), None)
 
 
-def simulate_one(scn: Scenario, static: Static):
-    """One scenario's closed loop (vmap this).  Returns a dict of per-step arrays."""
+def _start(scn: Scenario, static: Static):
+    """The loop's carry at SSP⁻_0 and whether the first plan solved: the MPC plans u_H,0..
+    from x_H,0 (a cold start: the previous plan rests on the start) and the plant starts."""
     plant = plants.load(static.plant)
-    A, B = scn.mpc.A, scn.mpc.B
-    T = scn.t_ssp + scn.t_dsp
     dt = scn.x0.dtype
-
-    def plan(x_start, t_start, stance, prev_plan, step):
-        return _plan(scn, static, x_start, t_start, stance, prev_plan, step)
-
-    # initial plan u_H,0.. from x_H,0 (a cold start: previous plan = resting on the start)
     stance0 = jnp.int32(STANCE_RIGHT)
-    plan0, ok0 = plan(scn.x0, jnp.zeros((), dt), stance0, _cold_plan(scn, static.horizon), 0)
+    plan0, ok0 = _plan(scn, static, scn.x0, jnp.zeros((), dt), stance0,
+                       _cold_plan(scn, static.horizon), 0)
     u_h0 = plan0.u[0]
     u_r0 = u_h0  # x_R,0 = x_H,0
     heading0 = paths.reference(scn.path, jnp.zeros((), dt)).heading
     pstate = plant.init(scn.plant, scn.x0, u_r0, stance0, scn.key, heading0)
-
-    def body(carry: Carry, k):
-        t_k = k.astype(dt) * T
-        stance_k = (stance0 + k) % 2
-        active = carry.alive & (k < scn.n_steps)
-        # 2. the nominal's next pre-impact state
-        x_h_next = jnp.where(scn.tube, (carry.x_h @ A.T) + carry.u_h[:, None] * B,
-                             (carry.x_r @ A.T) + carry.u_r[:, None] * B)
-        # 3. plan from it
-        new_plan, ok = plan(x_h_next, t_k + T, 1 - stance_k, carry.plan, k + 1)
-        u_h_next = new_plan.u[0]
-        # 4. the plant walks one step
-        heading_next = paths.reference(scn.path, t_k + T).heading
-        cmd = StepCommand(t=t_k, stance=stance_k, x_hlip=carry.x_h, u_hlip=carry.u_h,
-                          x_hlip_next=x_h_next, u_hlip_next=u_h_next, gain=scn.gain,
-                          heading=heading_next, t_ssp=scn.t_ssp, t_dsp=scn.t_dsp, z0=scn.z0,
-                          live=active)
-        pnext, res, ticks = _plant_step(plant, scn, static, carry.pstate, cmd)
-        ref = paths.reference(scn.path, t_k)
-        obs = scn.mpc.obstacles
-        gap = jnp.linalg.norm(carry.x_r[:, 0][None, :] - obs[:, :2], axis=-1) - obs[:, 3]
-        clearance = jnp.min(jnp.where(scn.mpc.obstacle_active, gap, jnp.inf), initial=jnp.inf)
-        w = res.x_robot - (carry.x_r @ A.T) - carry.u_r[:, None] * B
-        out = dict(t=t_k, t_plant=carry.t_plant, stance=stance_k, x_hlip=carry.x_h, x_robot=carry.x_r,
-                   u_hlip=carry.u_h, u_robot=carry.u_r, w=w, ref_pos=ref.position,
-                   ref_vel=ref.velocity, ref_heading=ref.heading, qp_status=new_plan.status,
-                   qp_iter=new_plan.iterations, obstacle_slack=new_plan.slack,
-                   clearance=clearance, valid=active, failed_now=active & res.failed,
-                   nonfinite=active & ~jnp.all(jnp.isfinite(res.x_robot)),
-                   qp_failed=active & ~ok)
-        if ticks is not None:
-            out["ticks"] = ticks
-        keep = active & ~res.failed
-
-        def sel(new, old):
-            return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, old)
-
-        nxt = Carry(x_h=sel(x_h_next, carry.x_h), u_h=sel(u_h_next, carry.u_h),
-                    x_r=sel(res.x_robot, carry.x_r), u_r=sel(res.u_robot, carry.u_r),
-                    plan=sel(new_plan, carry.plan), pstate=sel(pnext, carry.pstate),
-                    alive=carry.alive & ~(active & res.failed),
-                    qp_ok=carry.qp_ok & (ok | ~active),
-                    t_plant=sel(carry.t_plant + jnp.asarray(res.duration, dt), carry.t_plant))
-        return nxt, out
-
     carry0 = Carry(x_h=scn.x0, u_h=u_h0, x_r=scn.x0, u_r=u_r0, plan=plan0, pstate=pstate,
                    alive=jnp.bool_(True), qp_ok=ok0, t_plant=jnp.zeros((), dt))
-    def body_with_news(carry, k):
-        nxt, out = body(carry, k)
-        jax.debug.callback(functools.partial(progress.step_done, n_steps=static.n_steps), k)
-        return nxt, out
+    return carry0, ok0
 
-    final, out = jax.lax.scan(body_with_news if static.progress else body, carry0,
-                              jnp.arange(static.n_steps))
+
+def _step(scn: Scenario, static: Static, carry: Carry, k):
+    """Walking step k of the module doc's timeline: (carry at SSP⁻_{k+1}, the step's log row).
+    A step at or beyond the scenario's ``n_steps``, or of a fallen robot, is not active: it
+    leaves the carry as it is and its row is marked invalid."""
+    plant = plants.load(static.plant)
+    A, B = scn.mpc.A, scn.mpc.B
+    dt = scn.x0.dtype
+    T = scn.t_ssp + scn.t_dsp
+    t_k = k.astype(dt) * T
+    stance_k = (STANCE_RIGHT + k) % 2
+    active = carry.alive & (k < scn.n_steps)
+    # 2. the nominal's next pre-impact state
+    x_h_next = jnp.where(scn.tube, (carry.x_h @ A.T) + carry.u_h[:, None] * B,
+                         (carry.x_r @ A.T) + carry.u_r[:, None] * B)
+    # 3. plan from it
+    new_plan, ok = _plan(scn, static, x_h_next, t_k + T, 1 - stance_k, carry.plan, k + 1)
+    u_h_next = new_plan.u[0]
+    # 4. the plant walks one step
+    heading_next = paths.reference(scn.path, t_k + T).heading
+    cmd = StepCommand(t=t_k, stance=stance_k, x_hlip=carry.x_h, u_hlip=carry.u_h,
+                      x_hlip_next=x_h_next, u_hlip_next=u_h_next, gain=scn.gain,
+                      heading=heading_next, t_ssp=scn.t_ssp, t_dsp=scn.t_dsp, z0=scn.z0,
+                      live=active)
+    pnext, res, ticks = _plant_step(plant, scn, static, carry.pstate, cmd)
+    ref = paths.reference(scn.path, t_k)
+    obs = scn.mpc.obstacles
+    gap = jnp.linalg.norm(carry.x_r[:, 0][None, :] - obs[:, :2], axis=-1) - obs[:, 3]
+    clearance = jnp.min(jnp.where(scn.mpc.obstacle_active, gap, jnp.inf), initial=jnp.inf)
+    w = res.x_robot - (carry.x_r @ A.T) - carry.u_r[:, None] * B
+    out = dict(t=t_k, t_plant=carry.t_plant, stance=stance_k, x_hlip=carry.x_h, x_robot=carry.x_r,
+               u_hlip=carry.u_h, u_robot=carry.u_r, w=w, ref_pos=ref.position,
+               ref_vel=ref.velocity, ref_heading=ref.heading, qp_status=new_plan.status,
+               qp_iter=new_plan.iterations, obstacle_slack=new_plan.slack,
+               clearance=clearance, valid=active, failed_now=active & res.failed,
+               nonfinite=active & ~jnp.all(jnp.isfinite(res.x_robot)),
+               qp_failed=active & ~ok)
+    if ticks is not None:
+        out["ticks"] = ticks
+    keep = active & ~res.failed
+
+    def sel(new, old):
+        return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, old)
+
+    nxt = Carry(x_h=sel(x_h_next, carry.x_h), u_h=sel(u_h_next, carry.u_h),
+                x_r=sel(res.x_robot, carry.x_r), u_r=sel(res.u_robot, carry.u_r),
+                plan=sel(new_plan, carry.plan), pstate=sel(pnext, carry.pstate),
+                alive=carry.alive & ~(active & res.failed),
+                qp_ok=carry.qp_ok & (ok | ~active),
+                t_plant=sel(carry.t_plant + jnp.asarray(res.duration, dt), carry.t_plant))
+    return nxt, out
+
+
+def simulate_one(scn: Scenario, static: Static):
+    """One scenario's closed loop in one scan over all ``static.n_steps`` steps (vmap this).
+    Returns a dict of per-step arrays."""
+    carry0, ok0 = _start(scn, static)
+    _, out = jax.lax.scan(lambda c, k: _step(scn, static, c, k), carry0,
+                          jnp.arange(static.n_steps))
     return _finish(out, ok0)
 
 
-def _run(batch: Scenario, static: Static):
+@functools.partial(jax.jit, static_argnames=("static",))
+def _run_whole(batch: Scenario, static: Static):
     return jax.vmap(lambda s: simulate_one(s, static))(batch)
 
 
-run = jax.jit(_run, static_argnames=("static",))
+@functools.partial(jax.jit, static_argnames=("static",))
+def _start_batch(batch: Scenario, static: Static):
+    return jax.vmap(lambda s: _start(s, static))(batch)
+
+
+@functools.partial(jax.jit, static_argnames=("static",))
+def _segment_batch(batch: Scenario, carry: Carry, ks, static: Static):
+    """Steps ``ks`` (L,) of every scenario: (carry, log rows with a (scenarios, L) front)."""
+    def one(scn, c):
+        return jax.lax.scan(lambda c, k: _step(scn, static, c, k), c, ks)
+    return jax.vmap(one)(batch, carry)
+
+
+_finish_batch = jax.jit(jax.vmap(_finish))
+
+
+def segment_length(n_steps: int) -> int:
+    """Steps per compiled segment when progress is reported: about 20 segments a run."""
+    return max(1, math.ceil(n_steps / 20))
+
+
+def run(batch: Scenario, static: Static):
+    """Every scenario's closed loop (the batch on the devices it was placed on).
+
+    Without ``static.progress`` the whole run is one compiled call.  With it the steps run in
+    segments of :func:`segment_length` (one compiled program serves every segment: the step
+    indices are data, and steps past ``n_steps`` are inactive), and every finished segment is
+    reported to :func:`hlip_jax.progress.step_done` from Python — no host callback inside the
+    compiled loop, so it stays cacheable on disk (:mod:`hlip_jax.compile_cache`).  Both give
+    the same numbers: a segment boundary only splits the scan."""
+    if not static.progress:
+        return _run_whole(batch, static)
+    K, L = static.n_steps, segment_length(static.n_steps)
+    carry, ok0 = _start_batch(batch, static)
+    outs = []
+    for k0 in range(0, K, L):
+        carry, out = _segment_batch(batch, carry, jnp.arange(k0, k0 + L), static)
+        outs.append(out)
+        jax.block_until_ready(carry)
+        progress.step_done(min(k0 + L, K) - 1, K)
+    out = jax.tree.map(lambda *a: jnp.concatenate(a, axis=1)[:, :K], *outs)
+    return _finish_batch(out, ok0)
 
 
 def scenario_sharding(devices=None):

@@ -13,3 +13,18 @@ def float64():
         yield
     finally:
         jax.config.update("jax_enable_x64", old)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_compile_cache(tmp_path_factory):
+    """The CLI's persistent compilation cache (hlip_jax.compile_cache) goes to a directory of
+    this test session, never the user's, also for CLI subprocesses (they inherit the
+    variable)."""
+    import os
+    old = os.environ.get("HLIP_JAX_CACHE_DIR")
+    os.environ["HLIP_JAX_CACHE_DIR"] = str(tmp_path_factory.mktemp("xla_cache"))
+    yield
+    if old is None:
+        os.environ.pop("HLIP_JAX_CACHE_DIR", None)
+    else:
+        os.environ["HLIP_JAX_CACHE_DIR"] = old

@@ -181,12 +181,29 @@ shape = "line"
 [grid.product]
 "gain.type" = ["deadbeat", "lqr"]
 """)
-    r = hs("run", sw, "--out", tmp_path / "o", fake=False, timeout=600)
+    cache = tmp_path / "cache"
+    r = hs("run", sw, "--out", tmp_path / "o", "--compile-cache", cache, fake=False, timeout=600)
     assert r.returncode == 0, r.stderr
     assert "report: " in r.stdout and str(tmp_path / "o" / "report.html") in r.stdout
     rows = (tmp_path / "o" / "summary.csv").read_text().splitlines()
     assert len(rows) == 3 and all(",ok," in row for row in rows[1:])
     assert (tmp_path / "o" / "figures" / "line_xy.png").is_file()
+    # the compiled closed loop went to the cache, and a second run that reads it back
+    # simulates the same scenarios to the same numbers
+    assert any(cache.iterdir())
+    r2 = hs("run", sw, "--out", tmp_path / "o2", "--compile-cache", cache, "--no-report",
+            fake=False, timeout=600)
+    assert r2.returncode == 0, r2.stderr
+    assert (tmp_path / "o2" / "summary.csv").read_text() == "\n".join(rows) + "\n"
+
+
+def test_unusable_compile_cache_is_a_user_error(tmp_path, tiny_sweep, capsys, fake_loop):
+    (tmp_path / "file").write_text("x")
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o",
+                       "--compile-cache", tmp_path / "file")
+    line = _one_line_error(code, err)
+    assert "--compile-cache" in line and "writable directory" in line
+    assert not (tmp_path / "o").exists()
 
 
 # --------------------------------------------------------------------------------------------

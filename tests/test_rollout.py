@@ -209,9 +209,10 @@ def test_stepping_gain_per_plane():
 
 
 def test_progress_news_from_inside_the_loop():
-    """While a listener is registered every walking step of the chunk is reported once (the
-    callback's argument is the unbatched step index), and the log is bit-identical to a run
-    without a listener (the news only reads the step index)."""
+    """While a listener is registered the steps run in segments and the end of every segment
+    is reported once, counting up to the last step; the log equals a run without a listener
+    (one scan over all steps) to float round-off: the segments only split the scan (1e-12 in
+    float64; the two programs are compiled separately, so their last bits may differ)."""
     from hlip_jax import progress
     cfgs = [ScenarioConfig(path=PathConfig(shape="circle", params=dict(peak_speed=v)),
                            duration=4.0) for v in (0.3, 0.6)]
@@ -221,6 +222,11 @@ def test_progress_news_from_inside_the_loop():
     assert not progress.active()
     quiet = rollout.simulate(cfgs)
     K = loud.t.shape[1]
-    assert sorted(heard) == [(k, K) for k in range(1, K + 1)]
+    L = rollout.segment_length(K)
+    assert heard == [(min(k + L, K), K) for k in range(0, K, L)] and len(heard) > 1
     for f in steplog.FIELDS:
-        np.testing.assert_array_equal(getattr(loud, f), getattr(quiet, f), err_msg=f)
+        a, b = getattr(loud, f), getattr(quiet, f)
+        if np.issubdtype(np.asarray(a).dtype, np.floating):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12, equal_nan=True, err_msg=f)
+        else:
+            np.testing.assert_array_equal(a, b, err_msg=f)
