@@ -421,6 +421,12 @@ def _segment_batch(batch: Scenario, carry: Carry, ks, static: Static):
 _finish_batch = jax.jit(jax.vmap(_finish))
 
 
+def compiled_loops() -> int:
+    """How many compiled closed-loop programs this process holds (whole runs and segments):
+    a sweep whose chunks share their shapes adds one."""
+    return _run_whole._cache_size() + _segment_batch._cache_size()
+
+
 def segment_length(n_steps: int) -> int:
     """Steps per compiled segment when progress is reported: about 20 segments a run."""
     return max(1, math.ceil(n_steps / 20))

@@ -47,10 +47,10 @@ def test_one_compile_per_sweep(tmp_path):
     the first chunk compiles, later chunks hit the cache."""
     sw = sweep.parse_sweep(SMALL_SWEEP, source="scale-test.toml")
     assert len(sw.scenarios) == 6
-    before = rollout.run._cache_size()
+    before = rollout.compiled_loops()
     res = runner.run_sweep(sw, tmp_path / "out", batch=2, progress=False, with_coverage=False)
     assert res.complete and res.chunks_run == 3
-    assert rollout.run._cache_size() - before == 1
+    assert rollout.compiled_loops() - before == 1
 
 
 SHARDED = textwrap.dedent("""
