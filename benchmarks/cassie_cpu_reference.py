@@ -423,15 +423,22 @@ def build(meas, des, cond, contact, tau_min, tau_max, gains: clfqp.Gains) -> clf
     mu_pd = -kp * e - kd * edot
     W = msk * np.asarray(gains.weight)
     nu = A_mu.shape[1]
-    P = np.zeros((nu + 1, nu + 1))
+    G = clfqp.N_GROUPS
+    P = np.zeros((nu + G, nu + G))
     P[:nu, :nu] = A_mu.T @ (W[:, None] * A_mu) + float(gains.w_tau) * np.eye(nu)
-    P[nu, nu] = float(gains.w_delta)
-    q = np.concatenate([A_mu.T @ (W * (b_mu - mu_pd)), np.zeros(1)])
-    V = np.sum(msk * (kp * kd * e ** 2 + 2 * kp * e * edot + kd * edot ** 2))
-    LfV = np.sum(2 * msk * (kp * kd * e + kp * edot) * edot)
-    LgV = 2 * msk * (kp * e + kd * edot)
-    LgV_A = LgV @ A_mu
-    clf_ub = -float(gains.gamma) * V - LfV - LgV @ b_mu
+    P[nu:, nu:] = float(gains.w_delta) * np.eye(G)
+    q = np.concatenate([A_mu.T @ (W * (b_mu - mu_pd)), np.zeros(G)])
+    # one CLF per output group, summed over its rows
+    V, LfV, LgV_b = np.zeros(G), np.zeros(G), np.zeros(G)
+    LgV_A = np.zeros((G, nu))
+    for k, rows in enumerate(outputs.GROUPS):
+        ek, dk, mk, pk, vk = e[rows], edot[rows], msk[rows], kp[rows], kd[rows]
+        V[k] = np.sum(mk * (pk * vk * ek ** 2 + 2 * pk * ek * dk + vk * dk ** 2))
+        LfV[k] = np.sum(2 * mk * (pk * vk * ek + pk * dk) * dk)
+        LgV_k = 2 * mk * (pk * ek + vk * dk)
+        LgV_A[k] = LgV_k @ A_mu[rows]
+        LgV_b[k] = LgV_k @ b_mu[rows]
+    clf_ub = -np.asarray(gains.gamma, float) * V - LfV - LgV_b
     c0, c1 = dynamics.N_LOOP_ROWS, dynamics.N_LOOP_ROWS + dynamics.N_CONTACT_ROWS
     Lc = cond.lam_tau[c0:c1].reshape(clfqp.N_SITES, 3, nu)
     lc0 = cond.lam0[c0:c1].reshape(clfqp.N_SITES, 3)
@@ -439,14 +446,14 @@ def build(meas, des, cond, contact, tau_min, tau_max, gains: clfqp.Gains) -> clf
     F = (sel @ Lc).reshape(clfqp.N_FRICTION_ROWS, nu)
     f0 = (lc0 @ sel.T).reshape(clfqp.N_FRICTION_ROWS)
     on = np.repeat(np.asarray(contact, float) > 0.5, 5)
-    A = np.zeros((clfqp.n_rows(nu), nu + 1))
-    A[0, :nu] = LgV_A
-    A[0, nu] = -1.0
-    A[1:1 + clfqp.N_FRICTION_ROWS, :nu] = F
-    A[1 + clfqp.N_FRICTION_ROWS:] = np.eye(nu + 1)
-    l = np.concatenate([[-np.inf], np.where(on, -f0, -np.inf), tau_min, [0.0]])
-    u = np.concatenate([[clf_ub], np.full(clfqp.N_FRICTION_ROWS, np.inf), tau_max, [np.inf]])
-    return clfqp.Problem(P=P, q=q, A=A, l=l, u=u, V=V, Vdot_free=LfV + LgV @ b_mu, LgV_A=LgV_A)
+    A = np.zeros((clfqp.n_rows(nu), nu + G))
+    A[:G, :nu] = LgV_A
+    A[:G, nu:] = -np.eye(G)
+    A[G:G + clfqp.N_FRICTION_ROWS, :nu] = F
+    A[G + clfqp.N_FRICTION_ROWS:] = np.eye(nu + G)
+    l = np.concatenate([np.full(G, -np.inf), np.where(on, -f0, -np.inf), tau_min, np.zeros(G)])
+    u = np.concatenate([clf_ub, np.full(clfqp.N_FRICTION_ROWS, np.inf), tau_max, np.full(G, np.inf)])
+    return clfqp.Problem(P=P, q=q, A=A, l=l, u=u, V=V, Vdot_free=LfV + LgV_b, LgV_A=LgV_A)
 
 
 def _pattern(mask: np.ndarray):
@@ -461,21 +468,22 @@ class QPSolver:
     """OSQP on the CLF-QP's fixed sparsity pattern, one object per robot.
 
     Pattern (structural, independent of the values): P's upper triangle of the τ block and the
-    (δ, δ) entry; A's CLF row (all n), the friction rows' τ columns and the identity of the box
-    rows.  :meth:`solve` updates (Px, q, Ax, l, u), warm-starts from the previous tick's (x, y)
+    (δ, δ) diagonal; A's CLF rows (all n columns), the friction rows' τ columns and the
+    identity of the box rows.  :meth:`solve` updates (Px, q, Ax, l, u), warm-starts from the previous tick's (x, y)
     and resets ρ to ρ₀ when the last solve adapted it, so every tick starts like
     :func:`hlip_jax.qp.solve` (fresh ρ₀, Ruiz scaling of the new data, warm x, y)."""
 
     def __init__(self, nu: int, settings=clfqp.DEFAULT_SETTINGS):
-        n, mrows = nu + 1, clfqp.n_rows(nu)
+        G = clfqp.N_GROUPS
+        n, mrows = clfqp.n_vars(nu), clfqp.n_rows(nu)
         nf = clfqp.N_FRICTION_ROWS
         pmask = np.zeros((n, n), bool)
         pmask[np.triu_indices(nu)] = True
-        pmask[nu, nu] = True
+        pmask[np.arange(nu, n), np.arange(nu, n)] = True
         amask = np.zeros((mrows, n), bool)
-        amask[0] = True
-        amask[1:1 + nf, :nu] = True
-        amask[1 + nf:] = np.eye(n, dtype=bool)
+        amask[:G] = True
+        amask[G:G + nf, :nu] = True
+        amask[G + nf:] = np.eye(n, dtype=bool)
         pi, pj, self._pr, self._pc = _pattern(pmask)
         ai, aj, self._ar, self._ac = _pattern(amask)
         P0 = sp.csc_matrix((np.where(self._pr == self._pc, 1.0, 0.0), pj, pi), shape=(n, n))
@@ -514,9 +522,9 @@ class QPSolver:
 
 class TickResult(NamedTuple):
     tau: np.ndarray       # (nu,) [N m], clipped to the limits
-    delta: float
-    V: float
-    Vdot: float           # predicted V̇ at τ
+    delta: np.ndarray     # (N_GROUPS,) CLF relaxations
+    V: np.ndarray         # (N_GROUPS,) CLF values
+    Vdot: np.ndarray      # (N_GROUPS,) predicted V̇_g at τ
     status: int           # OSQP status code (hlip_jax.qp codes)
     iterations: int
 
@@ -540,7 +548,7 @@ class Robot:
         mujoco.mj_forward(m, self.d)
         nu = m.nu
         self.qp = QPSolver(nu, settings)
-        self.warm = (np.zeros(nu + 1), np.zeros(clfqp.n_rows(nu)))
+        self.warm = (np.zeros(clfqp.n_vars(nu)), np.zeros(clfqp.n_rows(nu)))
         self.contact = np.ones(4)
 
     def solve_M(self, Yt: np.ndarray) -> np.ndarray:
@@ -571,8 +579,8 @@ class Robot:
         self.warm = (np.array(x), np.array(y))
         nu = s.m.nu
         tau = np.clip(x[:nu], s.tau_min, s.tau_max)
-        res = TickResult(tau=tau, delta=float(x[nu]), V=float(prob.V),
-                         Vdot=float(prob.Vdot_free + prob.LgV_A @ tau), status=status,
+        res = TickResult(tau=tau, delta=np.array(x[nu:]), V=np.array(prob.V),
+                         Vdot=prob.Vdot_free + prob.LgV_A @ tau, status=status,
                          iterations=it)
         if prof is not None:
             t5 = time.perf_counter()
@@ -641,7 +649,7 @@ def stand(seconds: float, target, push=None, *, robot: Optional[Robot] = None,
         log.pelvis_z[k] = robot.d.qpos[2]
         log.rpy[k] = rpy_from_mat(terms.pelvis_R)
         log.tau[k] = res.tau
-        log.V[k] = res.V
+        log.V[k] = float(np.sum(res.V))
         log.status[k] = res.status
         log.iterations[k] = res.iterations
     return log

@@ -12,7 +12,11 @@ Tolerances:
   Cholesky) and in the LAPACK eigen-solver of G's pseudo-inverse — round-off of ~1e-12
   relative (G's condition number on the kept eigenvalues is ~1e9).
 * torques: 1e-2 × each motor's torque limit.  Both solve the QP with OSQP's ADMM at
-  ε_abs = ε_rel = 1e-4 within at most 150 iterations, and that tolerance bounds the residuals,
+  ε_abs = ε_rel = 1e-4 within at most ``SETTINGS.max_iter`` = 1000 iterations (the walking
+  tick's budget is 150; with one CLF row per output group the perturbed state's QP is then
+  only "solved inaccurate", up to 15 % of the hip-roll limit from the optimum — a property of
+  the controller's iteration budget, docs/cassie_gait.md, not a difference between the two
+  implementations, which this module tests), and that tolerance bounds the residuals,
   not the distance to the optimum; the same iterations from (numerically) the same data agree
   much more closely in practice (1e-11 to 1e-3 of the limit), but only the tolerance-level
   agreement is part of the contract.  An accurately solved OSQP (ε = 1e-10) is the third
@@ -49,6 +53,7 @@ STATES = {"calm": (0.0, 0.05, 1), "perturbed": (0.01, 0.2, 3)}
 MATRIX_RTOL = 1e-8
 TORQUE_TOL = 1e-2     # × the torque limit of each motor (reference vs JAX)
 OPTIMUM_TOL = 3e-2    # × the torque limit of each motor (either vs the accurate QP solution)
+SETTINGS = clfqp.DEFAULT_SETTINGS._replace(max_iter=1000)   # ADMM budget of both solvers
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +77,7 @@ def jax_tick(cassie):
     def tick(dx, tg):
         des = outputs.stand_desired(tg[2], tg[:2], tg[3])
         res, meas, terms = control.control(cassie, dx, des, contact, lo, hi, control.STAND_GAINS,
-                                           control.warm_zeros(cassie, jnp.float64))
+                                           control.warm_zeros(cassie, jnp.float64), SETTINGS)
         cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie))
         prob = clfqp.build(meas, des, cond, contact, lo, hi, control.STAND_GAINS)
         return terms, meas, cond, prob, res
@@ -101,7 +106,7 @@ def pair(request, cassie, ref_static, jax_tick):
     tg = np.array([c[0] + 0.01, c[1] - 0.01, c[2] - 0.02, 0.05])
     jx = jax.tree.map(np.asarray, jax_tick(mjx.put_data(m, d), jnp.asarray(tg)))
     s = ref_static
-    robot = cpu_reference.Robot(s, qpos=d.qpos, qvel=d.qvel)
+    robot = cpu_reference.Robot(s, qpos=d.qpos, qvel=d.qvel, settings=SETTINGS)
     des = cpu_reference.stand_desired(tg[2], tg[:2], tg[3])
     res, terms, prob = robot.control(des)
     meas = cpu_reference.measure(terms, robot.d.qvel, s.idx.root_dof)

@@ -12,24 +12,31 @@ continuous Riccati equation (CARE) has the closed-form solution
     P_i = [[k_p k_d, k_p], [k_p, k_d]],   LQR gain K_i = Gᵀ P_i = [k_p, k_d],
 
 (checked against scipy in the tests); with k_p = ω², k_d = 2ζω the closed loop is the PD
-μ = −k_p e − k_d ė.  V = Σ_i m_i η_iᵀ P_i η_i (m_i the mode's output mask) and along the
-output dynamics
+μ = −k_p e − k_d ė.  Under the LQR feedback η_iᵀP_iη_i decays at least at the rate γ_i, the
+smallest generalised eigenvalue of (Q_i + K_iᵀK_i, P_i) (:func:`clf_rate`; γ_i ∝ ω_i).
 
-    V̇ = L_fV + L_gV μ,   L_fV = Σ 2 m_i (k_p k_d e_i + k_p ė_i) ė_i,   (L_gV)_i = 2 m_i (k_p e_i + k_d ė_i).
+The outputs fall into groups with their own time scales (``outputs.GROUPS``: pelvis
+orientation, COM, foot position and slope, foot yaw).  Each group g has its own CLF
 
-Under the LQR feedback V̇ = −ηᵀ(Q + PGGᵀP)η ≤ −γ_i V with γ_i the smallest generalised
-eigenvalue of (Q + KᵀK, P); the CLF row uses γ = min_i γ_i (:func:`clf_rate`).
+    V_g = Σ_{i∈g} m_i η_iᵀ P_i η_i,   γ_g = min_{i∈g} γ_i      (m_i the mode's output mask),
 
-QP over x = [τ (nu), δ]:
+so the decay rate asked of a group is that of its own slowest output, not of the slowest
+output of the robot (one CLF over all rows would let the fast swing and pelvis outputs decay
+at the COM height's rate).  Along the output dynamics
 
-    min  ½ ‖W (A_μ τ + b_μ − μ_PD)‖² + ½ w_τ ‖τ‖² + ½ p δ²
-    s.t. L_fV + L_gV (A_μ τ + b_μ) ≤ −γ V + δ,   δ ≥ 0            (relaxed CLF decrease)
+    V̇_g = L_fV_g + L_gV_g μ,   L_fV_g = Σ_{i∈g} 2 m_i (k_p k_d e_i + k_p ė_i) ė_i,
+    (L_gV_g)_i = 2 m_i (k_p e_i + k_d ė_i)  (i ∈ g, 0 elsewhere).
+
+QP over x = [τ (nu), δ (4)]:
+
+    min  ½ ‖W (A_μ τ + b_μ − μ_PD)‖² + ½ w_τ ‖τ‖² + ½ p ‖δ‖²
+    s.t. L_fV_g + L_gV_g (A_μ τ + b_μ) ≤ −γ_g V_g + δ_g,   δ_g ≥ 0  (per group, relaxed)
          λ_z ≥ 0,  |λ_x|, |λ_y| ≤ μ_f λ_z  at every active contact   (unilateral, pyramid)
          τ_min ≤ τ ≤ τ_max                                          (motor limits; a passive
                                                                      motor has τ_min = τ_max = 0)
 
 with μ_PD = −k_p e − k_d ė the CLF's own LQR input (the tracking term keeps the QP strictly
-convex and the torque near the LQR's; the CLF row is the guarantee), solved by
+convex and the torque near the LQR's; the CLF rows are the guarantee), solved by
 :func:`hlip_jax.qp.solve` warm-started from the previous tick; with ``fallback`` a tick whose QP is not
 solved within the iteration budget (typically infeasible contact rows at an impact) keeps the
 previous tick's torques, otherwise the last iterate is used (clipped to the limits).
@@ -48,6 +55,10 @@ from hlip_jax.plants.cassie import dynamics, outputs
 
 N_SITES = 4
 N_FRICTION_ROWS = 5 * N_SITES
+N_GROUPS = len(outputs.GROUPS)
+#: (N_GROUPS, N_OUT) 0/1 membership of the outputs in the CLF groups
+MEMBERS = np.stack([np.isin(np.arange(outputs.N_OUT), np.arange(outputs.N_OUT)[g]).astype(float)
+                    for g in outputs.GROUPS])
 
 
 class Gains(NamedTuple):
@@ -55,7 +66,7 @@ class Gains(NamedTuple):
     kp: jax.Array          # (16,) [1/s²]
     kd: jax.Array          # (16,) [1/s]
     weight: jax.Array      # (16,) tracking weights W² (dimensionless)
-    gamma: jax.Array       # CLF decay rate [1/s]
+    gamma: jax.Array       # (N_GROUPS,) CLF decay rate of each output group [1/s]
     w_tau: jax.Array       # torque regularisation weight [1/(N m)²]
     w_delta: jax.Array     # CLF relaxation weight
     friction: jax.Array    # pyramid friction coefficient used in the QP (≤ the model's)
@@ -68,7 +79,7 @@ def care_matrix(kp, kd) -> np.ndarray:
 
 def clf_rate(kp, kd) -> float:
     """γ with V̇ ≤ −γ V under the LQR feedback, for one output (smallest generalised eigenvalue
-    of (Q + KᵀK, P)); for several outputs take the minimum."""
+    of (Q + KᵀK, P)); a group of outputs takes the minimum of its own."""
     import scipy.linalg
 
     P = care_matrix(kp, kd)
@@ -86,9 +97,10 @@ def make_gains(omega, zeta=1.0, weight=None, w_tau=1e-4, w_delta=1e2, friction=0
     if zeta < 1 / np.sqrt(2):
         raise ValueError(f"zeta must be ≥ 1/√2 ≈ 0.707, got {zeta}")
     kp, kd = omega ** 2, 2 * zeta * omega
-    gamma = min(clf_rate(a, b) for a, b in zip(kp, kd))
+    rates = np.array([clf_rate(a, b) for a, b in zip(kp, kd)])
+    gamma = np.array([rates[g].min() for g in outputs.GROUPS])
     weight = np.ones(outputs.N_OUT) if weight is None else np.broadcast_to(weight, (outputs.N_OUT,))
-    return Gains(kp=kp, kd=kd, weight=np.asarray(weight, float), gamma=np.float64(gamma),
+    return Gains(kp=kp, kd=kd, weight=np.asarray(weight, float), gamma=gamma,
                  w_tau=np.float64(w_tau), w_delta=np.float64(w_delta),
                  friction=np.float64(friction))
 
@@ -103,9 +115,9 @@ class Problem(NamedTuple):
     A: jax.Array
     l: jax.Array
     u: jax.Array
-    V: jax.Array          # CLF value [—]
-    Vdot_free: jax.Array  # L_fV + L_gV b_μ (V̇ at τ = 0)
-    LgV_A: jax.Array      # (nu,) ∂V̇/∂τ
+    V: jax.Array          # (N_GROUPS,) CLF value of each group [—]
+    Vdot_free: jax.Array  # (N_GROUPS,) L_fV_g + L_gV_g b_μ (V̇_g at τ = 0)
+    LgV_A: jax.Array      # (N_GROUPS, nu) ∂V̇_g/∂τ
 
 
 def build(meas: outputs.Measured, des: outputs.Desired, cond: dynamics.Condensed,
@@ -120,45 +132,58 @@ def build(meas: outputs.Measured, des: outputs.Desired, cond: dynamics.Condensed
     W = m * jnp.asarray(gains.weight)
     nu = A_mu.shape[1]
     dt = A_mu.dtype
+    G = N_GROUPS
     H = A_mu.T @ (W[:, None] * A_mu) + gains.w_tau * jnp.eye(nu, dtype=dt)
     g = A_mu.T @ (W * (b_mu - mu_pd))
-    P = jnp.zeros((nu + 1, nu + 1), dt).at[:nu, :nu].set(H).at[nu, nu].set(gains.w_delta)
-    q = jnp.concatenate([g, jnp.zeros(1, dt)])
-    # CLF row: LgV A τ − δ ≤ −γV − LfV − LgV b
-    V = jnp.sum(m * (kp * kd * e ** 2 + 2 * kp * e * edot + kd * edot ** 2))
-    LfV = jnp.sum(2 * m * (kp * kd * e + kp * edot) * edot)
-    LgV = 2 * m * (kp * e + kd * edot)
-    clf_row = jnp.concatenate([LgV @ A_mu, -jnp.ones(1, dt)])
-    clf_ub = -gains.gamma * V - LfV - LgV @ b_mu
-    # friction pyramid and unilateral rows on the contact forces (rows 12.. of λ)
+    P = jnp.zeros((nu + G, nu + G), dt).at[:nu, :nu].set(H)
+    P = P.at[nu:, nu:].set(gains.w_delta * jnp.eye(G, dtype=dt))
+    q = jnp.concatenate([g, jnp.zeros(G, dt)])
+    # CLF rows: LgV_g A τ − δ_g ≤ −γ_g V_g − LfV_g − LgV_g b
+    M = jnp.asarray(MEMBERS, dt)
+    V = M @ (m * (kp * kd * e ** 2 + 2 * kp * e * edot + kd * edot ** 2))
+    LfV = M @ (2 * m * (kp * kd * e + kp * edot) * edot)
+    LgV = M * (2 * m * (kp * e + kd * edot))[None, :]                  # (G, 16)
+    LgV_A = LgV @ A_mu
+    clf_rows = jnp.concatenate([LgV_A, -jnp.eye(G, dtype=dt)], axis=1)
+    clf_ub = -jnp.asarray(gains.gamma, dt) * V - LfV - LgV @ b_mu
+    F, fric_l, fric_u = _friction(cond, contact, gains.friction, nu, dt)
+    F = jnp.concatenate([F, jnp.zeros((N_FRICTION_ROWS, G), dt)], axis=1)
+    box = jnp.eye(nu + G, dtype=dt)
+    A = jnp.concatenate([clf_rows, F, box], axis=0)
+    l = jnp.concatenate([jnp.full(G, -jnp.inf, dt), fric_l,
+                         jnp.asarray(tau_min, dt), jnp.zeros(G, dt)])
+    u = jnp.concatenate([clf_ub, fric_u, jnp.asarray(tau_max, dt), jnp.full(G, jnp.inf, dt)])
+    return Problem(P=P, q=q, A=A, l=l, u=u, V=V, Vdot_free=LfV + LgV @ b_mu, LgV_A=LgV_A)
+
+
+def _friction(cond: dynamics.Condensed, contact, mu_f, nu: int, dt):
+    """Unilateral and pyramid friction rows on the contact forces (rows of λ after the loop
+    closures) as (F (20, nu), lower, upper): l ≤ F τ; rows of sites out of contact are free."""
     c0, c1 = dynamics.N_LOOP_ROWS, dynamics.N_LOOP_ROWS + dynamics.N_CONTACT_ROWS
     Lc = cond.lam_tau[c0:c1].reshape(N_SITES, 3, nu)
     lc0 = cond.lam0[c0:c1].reshape(N_SITES, 3)
-    mu_f = gains.friction
     sel = jnp.array([[0, 0, 1], [-1, 0, mu_f], [1, 0, mu_f], [0, -1, mu_f], [0, 1, mu_f]], dt)
     F = jnp.einsum("rk,skn->srn", sel, Lc).reshape(N_FRICTION_ROWS, nu)
     f0 = jnp.einsum("rk,sk->sr", sel, lc0).reshape(N_FRICTION_ROWS)
     on = jnp.repeat(jnp.asarray(contact, dt) > 0.5, 5)
-    fric_l = jnp.where(on, -f0, -jnp.inf)
-    fric_u = jnp.full(N_FRICTION_ROWS, jnp.inf, dt)
-    F = jnp.concatenate([F, jnp.zeros((N_FRICTION_ROWS, 1), dt)], axis=1)
-    box = jnp.eye(nu + 1, dtype=dt)
-    A = jnp.concatenate([clf_row[None], F, box], axis=0)
-    l = jnp.concatenate([jnp.full(1, -jnp.inf, dt), fric_l,
-                         jnp.asarray(tau_min, dt), jnp.zeros(1, dt)])
-    u = jnp.concatenate([clf_ub[None], fric_u, jnp.asarray(tau_max, dt), jnp.full(1, jnp.inf, dt)])
-    return Problem(P=P, q=q, A=A, l=l, u=u, V=V, Vdot_free=LfV + LgV @ b_mu, LgV_A=LgV @ A_mu)
+    return F, jnp.where(on, -f0, -jnp.inf), jnp.full(N_FRICTION_ROWS, jnp.inf, dt)
+
+
+def n_vars(nu: int) -> int:
+    """QP variables: the torques and one relaxation per CLF group."""
+    return nu + N_GROUPS
 
 
 def n_rows(nu: int) -> int:
-    return 1 + N_FRICTION_ROWS + nu + 1
+    """QP rows: the CLF rows, the friction rows and the box rows of every variable."""
+    return N_GROUPS + N_FRICTION_ROWS + nu + N_GROUPS
 
 
 class Result(NamedTuple):
     tau: jax.Array        # (nu,) motor torques [N m], clipped to the limits
-    delta: jax.Array      # CLF relaxation
-    V: jax.Array
-    Vdot: jax.Array       # predicted V̇ at the returned τ
+    delta: jax.Array      # (N_GROUPS,) CLF relaxations
+    V: jax.Array          # (N_GROUPS,) CLF values
+    Vdot: jax.Array       # (N_GROUPS,) predicted V̇_g at the returned τ
     status: jax.Array
     iterations: jax.Array
     warm: tuple           # (x, y) for the next tick
@@ -200,7 +225,7 @@ def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
     ok = finite & (solved | jnp.logical_not(fallback)) & active
     x = jnp.where(ok, sol.x, warm[0])
     y = jnp.where(ok, sol.y, warm[1])
-    nu = prob.P.shape[0] - 1
+    nu = prob.P.shape[0] - N_GROUPS
     tau = jnp.clip(x[:nu], tau_min, tau_max)
-    return Result(tau=tau, delta=x[nu], V=prob.V, Vdot=prob.Vdot_free + prob.LgV_A @ tau,
+    return Result(tau=tau, delta=x[nu:], V=prob.V, Vdot=prob.Vdot_free + prob.LgV_A @ tau,
                   status=sol.status, iterations=sol.iterations, warm=(x, y))

@@ -84,7 +84,7 @@ def zero_torque_rollout(cassie: model.Cassie, d: mjx.Data, n_ticks: int) -> mjx.
 
 def warm_zeros(cassie: model.Cassie, dtype):
     nu = cassie.index.nu
-    return (jnp.zeros(nu + 1, dtype), jnp.zeros(clfqp.n_rows(nu), dtype))
+    return (jnp.zeros(clfqp.n_vars(nu), dtype), jnp.zeros(clfqp.n_rows(nu), dtype))
 
 
 class StandLog(NamedTuple):
@@ -125,7 +125,7 @@ def stand_rollout(cassie: model.Cassie, d0: mjx.Data, target, n_ticks: int,
         on = (t >= push[0]) & (t < push[1])
         d = physics(cassie, d, res.tau, jnp.where(on, push[2:], 0.0))
         log = StandLog(com=terms.com, pelvis_z=d.qpos[2],
-                       rpy=model.rpy_from_mat(terms.pelvis_R), tau=res.tau, V=res.V,
+                       rpy=model.rpy_from_mat(terms.pelvis_R), tau=res.tau, V=jnp.sum(res.V),
                        status=res.status)
         return (d, res.warm), log
 

@@ -32,6 +32,10 @@ ROT, COM_Z, COM_XY = slice(0, 3), 3, slice(4, 6)
 FOOT_POS = (slice(6, 9), slice(9, 12))
 FOOT_SLOPE = (12, 13)
 FOOT_YAW = (14, 15)
+#: output groups of the CLF (:mod:`clfqp`): pelvis orientation, COM (height; x, y standing),
+#: foot position and sole slope, foot yaw — each with its own Lyapunov function and rate
+GROUPS = (slice(0, 3), slice(3, 6), slice(6, 14), slice(14, 16))
+GROUP_NAMES = ("pelvis", "com", "foot", "yaw")
 
 
 class Measured(NamedTuple):

@@ -110,7 +110,7 @@ class TickLog(NamedTuple):
     com: jax.Array           # (3,) COM [m]
     feet: jax.Array          # (2, 3) foot centres [m]
     tau: jax.Array           # (10,) motor torques [N m]
-    V: jax.Array             # CLF value
+    V: jax.Array             # CLF value, summed over the output groups
     contact: jax.Array       # (4,) sites in the constraint set
     status: jax.Array        # CLF-QP status (hlip_jax.qp codes)
     pelvis: jax.Array        # (7,) pelvis position [m] and quaternion
@@ -326,7 +326,7 @@ def tick(ctx: Context, s: TickState, settings):
     e, _ = outputs.errors(meas, des)
     c0 = dynamics.N_LOOP_ROWS
     grf = (cond.lam_tau @ res.tau + cond.lam0)[c0:c0 + dynamics.N_CONTACT_ROWS].reshape(4, 3)
-    log = TickLog(com=terms.com, feet=outputs.foot_centres(terms), tau=res.tau, V=res.V,
+    log = TickLog(com=terms.com, feet=outputs.foot_centres(terms), tau=res.tau, V=jnp.sum(res.V),
                   contact=cts.sites, status=res.status, pelvis=s.d.qpos[:7], phase=s.phase,
                   u_des=u_des, y_err=e, grf=grf)
     return advance(ctx, s, cts, u_des, res, d_new), log
