@@ -44,22 +44,15 @@ def run_case(name, sweep_file, batch, duration):
     import jax
     import numpy as np
 
-    from hlip_jax import rollout, steplog
+    from hlip_jax import bench, rollout, steplog
 
-    cfgs = _cases(name, sweep_file, batch, duration)
-    b, static = rollout.build(cfgs)
-    with jax.default_matmul_precision("highest"):
-        t0 = time.perf_counter()
-        jax.block_until_ready(rollout.run(b, static))
-        t1 = time.perf_counter()
-        out = jax.block_until_ready(rollout.run(b, static))
-        t2 = time.perf_counter()
-    T = np.asarray(b.t_ssp + b.t_dsp)
-    sim = float(np.sum(T) * static.n_steps)
+    b, static = rollout.build(_cases(name, sweep_file, batch, duration))
+    t_first, t_run, out = bench.timed_run(b, static)
+    sim = float(np.sum(np.asarray(b.t_ssp + b.t_dsp)) * static.n_steps)
     walked = float(np.mean(np.asarray(out["status"]) == steplog.STATUS_OK))
     return dict(case=name, batch=batch, duration=duration, steps=static.n_steps,
-                ticks_per_step=int(b.plant.ticks.shape[-1]), compile_first_s=t1 - t0,
-                run_s=t2 - t1, robot_s_per_s=sim / (t2 - t1), walked=walked,
+                ticks_per_step=int(b.plant.ticks.shape[-1]), compile_first_s=t_first,
+                run_s=t_run, robot_s_per_s=sim / t_run, walked=walked,
                 device=jax.devices()[0].device_kind)
 
 

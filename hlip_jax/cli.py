@@ -128,7 +128,7 @@ def _use_cache(args) -> None:
     --compile-cache that cannot be used is a user error; an unusable default directory only
     turns the cache off (with a note)."""
     from hlip_jax import compile_cache
-    if getattr(args, "no_compile_cache", True):
+    if args.no_compile_cache:
         return
     if args.compile_cache:
         try:

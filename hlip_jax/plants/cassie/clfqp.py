@@ -57,8 +57,7 @@ N_SITES = 4
 N_FRICTION_ROWS = 5 * N_SITES
 N_GROUPS = len(outputs.GROUPS)
 #: (N_GROUPS, N_OUT) 0/1 membership of the outputs in the CLF groups
-MEMBERS = np.stack([np.isin(np.arange(outputs.N_OUT), np.arange(outputs.N_OUT)[g]).astype(float)
-                    for g in outputs.GROUPS])
+MEMBERS = np.stack([np.eye(outputs.N_OUT)[g].sum(axis=0) for g in outputs.GROUPS])
 
 
 class Gains(NamedTuple):

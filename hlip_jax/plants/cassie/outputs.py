@@ -35,7 +35,6 @@ FOOT_YAW = (14, 15)
 #: output groups of the CLF (:mod:`clfqp`): pelvis orientation, COM (height; x, y standing),
 #: foot position and sole slope, foot yaw — each with its own Lyapunov function and rate
 GROUPS = (slice(0, 3), slice(3, 6), slice(6, 14), slice(14, 16))
-GROUP_NAMES = ("pelvis", "com", "foot", "yaw")
 
 
 class Measured(NamedTuple):
