@@ -165,6 +165,42 @@ class CassieConfig:
 
 
 @dataclass(frozen=True)
+class RealismConfig:
+    """How far the simulated Cassie is from the ideal plant (Cassie only; the defaults are the
+    ideal plant).  Every field is per-scenario data: a sweep over them shares one compiled
+    program.  Models and sources: :mod:`hlip_jax.plants.cassie.realism`."""
+    motor_curve: bool = spec(False, doc="limit motor torques by their torque-speed curve "
+                             "(no-load speeds of Agility's Cassie model)", choices=(True, False))
+    motor_corner: float = spec(0.5, 0.05, 0.95, "fraction of the no-load speed up to which a motor "
+                               "gives full torque")
+    motor_lag: float = spec(0.0, 0.0, 0.05, "first-order time constant of the motor torque", "s")
+    latency: int = spec(0, 0, 10, "control ticks between measurement and torque", "ms")
+    control_period: int = spec(1, 1, 10, "ticks between control updates (torques held between "
+                               "them; 1 = 1 kHz)", "ms")
+    joint_noise: float = spec(0.0, 0.0, 5.0, "std of the joint-encoder noise", "deg")
+    joint_rate_noise: float = spec(0.0, 0.0, 100.0, "std of the joint-rate noise", "deg/s")
+    imu_noise: float = spec(0.0, 0.0, 5.0, "std of the pelvis orientation noise per axis", "deg")
+    imu_rate_noise: float = spec(0.0, 0.0, 100.0, "std of the gyro noise per axis", "deg/s")
+    imu_bias_roll: float = spec(0.0, -10.0, 10.0, "constant bias of the measured pelvis roll", "deg")
+    imu_bias_pitch: float = spec(0.0, -10.0, 10.0, "constant bias of the measured pelvis pitch", "deg")
+    velocity_filter: float = spec(0.0, 0.0, 0.5, "time constant of the low-pass on the COM velocity "
+                                  "the stepping law uses (0: unfiltered)", "s")
+    touchdown: str = spec("contact", doc="touchdown detection: exact contact distance ('contact') "
+                          "or the measured heel-spring deflection ('spring')",
+                          choices=("contact", "spring"))
+    spring_threshold: float = spec(1.5, 0.05, 20.0, "heel-spring compression that counts as ground "
+                                   "contact (touchdown = 'spring')", "deg")
+    mass_scale: float = spec(1.0, 0.5, 2.0, "factor on every link's mass and inertia")
+    pelvis_com_x: float = spec(0.0, -0.1, 0.1, "pelvis COM offset forward, pelvis frame", "m")
+    pelvis_com_y: float = spec(0.0, -0.1, 0.1, "pelvis COM offset to the left, pelvis frame", "m")
+    spring_stiffness_scale: float = spec(1.0, 0.25, 4.0, "factor on the leaf springs' stiffness")
+    friction: float = spec(1.0, 0.05, 2.0, "friction coefficient of the feet and the floor "
+                           "(the model's: 1.0)")
+    slope_x: float = spec(0.0, -15.0, 15.0, "ground slope rising along world x", "deg")
+    slope_y: float = spec(0.0, -15.0, 15.0, "ground slope rising along world y", "deg")
+
+
+@dataclass(frozen=True)
 class ScenarioConfig:
     """Everything one closed-loop run needs.  ``swept`` records the grid values that made it."""
     name: str = "scenario"
@@ -179,6 +215,7 @@ class ScenarioConfig:
     disturbance: DisturbanceConfig = field(default_factory=DisturbanceConfig)
     obstacles: tuple = ()
     cassie: CassieConfig = field(default_factory=CassieConfig)
+    realism: RealismConfig = field(default_factory=RealismConfig)
     swept: dict = field(default_factory=dict)
 
 

@@ -986,8 +986,10 @@ def load_sweep(path, *, plant: str | None = None, duration: float | None = None,
 
     A file may start from another with ``extends = "paper.toml"`` (a path relative to the file;
     ``.toml`` may be left out): the parent's ``[base]`` is deep-merged under the file's own, and
-    ``paths``, ``grid`` and ``description`` are the file's where it sets them, else the
-    parent's; the name is always the file's own (or its stem).  Chains of up to
+    ``paths`` and ``description`` are the file's where it sets them, else the parent's; of the
+    ``grid``, the file's ``product`` replaces the parent's ``product`` and its ``zip`` the
+    parent's ``zip``, each kind the file leaves out inherited (a variant that only changes the
+    seeds keeps its parent's zipped axes); the name is always the file's own (or its stem).  Chains of up to
     :data:`MAX_EXTENDS` files, no cycles.  The manifest keeps every file's text."""
     p = Path(path)
     doc, text = _resolve_extends(p, str(path), ())
@@ -1023,7 +1025,12 @@ def _resolve_extends(p: Path, source: str, chain: tuple) -> tuple[dict, str]:
     merged = {k: v for k, v in base_doc.items() if k != "name"}
     for k, v in doc.items():
         both_tables = isinstance(v, dict) and isinstance(merged.get(k), dict)
-        merged[k] = _deep_merge(merged[k], v) if k == "base" and both_tables else v
+        if k == "base" and both_tables:
+            merged[k] = _deep_merge(merged[k], v)
+        elif k == "grid" and both_tables:
+            merged[k] = {**merged[k], **v}
+        else:
+            merged[k] = v
     return merged, f"{text}\n# ---- extends {parent} ----\n{base_text}"
 
 

@@ -1,5 +1,7 @@
 """Tests of Cassie's condensed constrained dynamics, the CLF-QP and standing on MJX (CPU)."""
 
+import functools
+
 import jax
 
 jax.config.update("jax_enable_x64", True)
@@ -187,8 +189,16 @@ def stand_chunk(cassie):
     return jax.jit(f)
 
 
+@functools.cache
+def _compiled(cassie):
+    """(batched COM, batched canonical data) compiled once per model (each test calls them
+    several times)."""
+    return (jax.jit(jax.vmap(lambda x: model.robot_terms(cassie, x).com)),
+            jax.jit(jax.vmap(lambda x: control.canonical(cassie, x))))
+
+
 def _stand(cassie, stand_chunk, d, pushes, seconds):
-    target = np.asarray(jax.jit(jax.vmap(lambda x: model.robot_terms(cassie, x).com))(d))
+    target = np.asarray(_compiled(cassie)[0](d))
     target = np.concatenate([target[:, :2], target[:, 2:3] - 0.02, np.zeros((len(target), 1))], 1)
     w = jax.vmap(lambda _: control.warm_zeros(cassie, jnp.float64))(jnp.arange(len(target)))
     logs = []
@@ -203,7 +213,7 @@ def _stand(cassie, stand_chunk, d, pushes, seconds):
 def _batch(cassie, n, noise, seed):
     d = model.make_batch(cassie, n, jax.random.PRNGKey(seed), qpos_noise=noise, forward=False,
                          consistent=noise > 0)
-    return jax.jit(jax.vmap(lambda x: control.canonical(cassie, x)))(d)
+    return _compiled(cassie)[1](d)
 
 
 @pytest.mark.slow

@@ -237,6 +237,22 @@ def test_extends_paths_replace_the_parents(tmp_path):
     assert sw.scenarios[0].duration == 12.0
 
 
+def test_extends_grid_kinds_replace_one_by_one(tmp_path):
+    """A child's grid.product replaces the parent's product and keeps the parent's zip; a
+    child's zip replaces the parent's zip."""
+    parent = PARENT + ('[[grid.zip]]\n"hlip.z0" = [0.8, 0.9]\n"hlip.t_ssp" = [0.3, 0.35]\n'
+                       '[grid.product]\nseed = [1, 2, 3]\n')
+    (tmp_path / "parent.toml").write_text(parent)
+    (tmp_path / "seeds.toml").write_text('extends = "parent"\n[grid.product]\nseed = [7]\n')
+    (tmp_path / "zip.toml").write_text('extends = "parent"\n[[grid.zip]]\n"mpc.alpha" = [0.1, 0.2]\n')
+    assert len(sweep.load_sweep(tmp_path / "parent.toml").scenarios) == 6
+    sw = sweep.load_sweep(tmp_path / "seeds.toml")
+    assert [(c.hlip.z0, c.hlip.t_ssp, c.swept["seed"]) for c in sw.scenarios] == [(0.8, 0.3, 7), (0.9, 0.35, 7)]
+    sw = sweep.load_sweep(tmp_path / "zip.toml")
+    assert sorted({(c.mpc.alpha, c.hlip.z0) for c in sw.scenarios}) == [(0.1, 0.8), (0.2, 0.8)]
+    assert len(sw.scenarios) == 6
+
+
 @pytest.mark.parametrize("files, start, expect", [
     ({"a.toml": 'extends = "b"', "b.toml": 'extends = "a"'}, "a.toml", "a cycle"),
     ({"a.toml": 'extends = "a"'}, "a.toml", "a cycle"),

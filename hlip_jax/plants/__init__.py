@@ -7,7 +7,7 @@ records import their modules on first use, so that naming or validating a plant 
 (the Cassie plant pulls in MuJoCo XLA).
 
     plant = plants.load("cassie")
-    params = plant.make_params(cfg, n_push, t_step)
+    params = plant.make_params(cfg, n_push, t_step, non_ideal)
     state = plant.init(params, x0, u0, stance0, key, heading0)
     state, result = plant.step(params, state, cmd)           # + plant.settings(cfg) if any
 """
@@ -22,8 +22,10 @@ class Plant(NamedTuple):
     """A plant's functions (all pure; ``init``/``step`` jit- and vmap-able).
 
     name: the registry name (``plant = "..."`` in a sweep file).
-    make_params: (cfg, n_push, t_step) -> per-scenario params pytree; ``t_step`` is the
-      sweep's longest :attr:`step_span` (so that every chunk has one shape).
+    make_params: (cfg, n_push, t_step, non_ideal) -> per-scenario params pytree; ``t_step``
+      is the sweep's longest :attr:`step_span` and ``non_ideal`` whether any scenario of the
+      sweep departs from the ideal robot (``cfg.realism``), so that every chunk has one
+      shape and one program.
     init: (params, x0 (2, 3), u0 (2,), stance0, key, heading0) -> state.
     step: (params, state, cmd[, settings]) -> (state, StepResult).
     step_with_log: like ``step`` and also the per-tick log, or None (no ticks to log).
@@ -58,6 +60,14 @@ def check(cfg) -> Optional[str]:
     """The plant's own validation of a scenario config: None, or a one-line message naming a
     field the plant cannot take.  Light: no plant module is imported."""
     d = cfg.disturbance
+    if cfg.plant == "hlip":
+        from hlip_jax.config import RealismConfig
+        import dataclasses
+        r0 = RealismConfig()
+        for f in dataclasses.fields(r0):
+            if getattr(cfg.realism, f.name) != getattr(r0, f.name):
+                return (f"realism.{f.name}: {getattr(cfg.realism, f.name)!r} models the Cassie robot; "
+                        f"allowed with plant = 'hlip': {getattr(r0, f.name)!r}")
     if cfg.plant == "cassie":
         from hlip_jax.config import DisturbanceConfig
         d0 = DisturbanceConfig()

@@ -116,7 +116,8 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
                     ticks=np.zeros((B, plant.tick_budget(float(T.max())))),
                     gait=jax.tree.map(lambda *a: np.stack(a), *gaits),
                     noise_v=np.broadcast_to(np.asarray(noise_v, float), (B,)).copy(),
-                    step_error=np.broadcast_to(np.asarray(step_error, float), (B,)).copy())
+                    step_error=np.broadcast_to(np.asarray(step_error, float), (B,)).copy(),
+                    real=None)
     if pushes is not None:
         for i, (t0, t1, fx, fy) in enumerate(pushes):
             params.push_start[:, i], params.push_end[:, i] = t0, t1
@@ -125,7 +126,8 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
     x0 = jnp.zeros((2, 3))
     one = plant.init(None, x0, None, None, jax.random.PRNGKey(0))       # every robot starts alike
     state = jax.tree.map(lambda a: jnp.broadcast_to(a, (B,) + a.shape), one)
-    state = state._replace(key=jax.vmap(jax.random.PRNGKey)(jnp.arange(B)))
+    keys = jax.vmap(jax.random.PRNGKey)(jnp.arange(B))
+    state = state._replace(key=keys)
     if batch_step is None:
         batch_step = jax.jit(jax.vmap(plant.step_with_log))
     k_h = np.asarray(jax.vmap(hlip.deadbeat_gain)(z0, t_ssp, t_dsp))             # (B, 2)

@@ -30,7 +30,7 @@ import numpy as np
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax.plants import Plant
 from hlip_jax.plants.base import StepCommand, StepResult, push_table
-from hlip_jax.plants.cassie import clfqp, control, model, outputs, tick
+from hlip_jax.plants.cassie import clfqp, control, model, outputs, realism, tick
 
 cassie = tick.cassie
 
@@ -90,6 +90,8 @@ class Params(NamedTuple):
     gait: Gait
     noise_v: jax.Array       # half-width of the per-step COM velocity noise [m/s]
     step_error: jax.Array    # half-width of the landing-target error [m]
+    real: realism.Realism | None  # departures from the ideal plant (motors, sensing, model,
+                                  # slope); None in a batch of ideal robots (not compiled)
 
 
 class State(NamedTuple):
@@ -99,6 +101,7 @@ class State(NamedTuple):
     yaw: jax.Array           # pelvis heading target at the current SSP⁻ [rad]
     land_xy: jax.Array       # (2,) where the landing foot's centre was aimed [m]
     key: jax.Array
+    real: realism.RealState | None  # what the non-ideal stages carry from step to step
 
 
 def step_span(cfg) -> float:
@@ -114,16 +117,22 @@ def tick_budget(t_step: float) -> int:
     return int(10 * math.ceil(round(tick.LATE_SSP * t_step / (10 * control.CONTROL_DT), 6)))
 
 
-def make_params(cfg, n_push: int, t_step: float = 0.0) -> Params:
+def make_params(cfg, n_push: int, t_step: float = 0.0, non_ideal: bool = False) -> Params:
     """Per-scenario plant data from a :class:`hlip_jax.config.ScenarioConfig`; pushes act on
     the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`).  The tick
     budget covers steps of ``max(t_step, step_span(cfg))`` (pass the sweep's longest span so
-    that every chunk has one shape)."""
+    that every chunk has one shape).  ``non_ideal``: the batch has a robot that departs from
+    the ideal plant (``cfg.realism``), so every robot carries realism data; otherwise none
+    does, and a scenario that departs is an error."""
+    real = realism.make(cfg.realism)
+    if not (non_ideal or realism.is_ideal(real)):
+        raise ValueError(f"realism: scenario {cfg.name!r} departs from the ideal plant; build "
+                         "it with non_ideal=True (rollout.shapes_of sets it for the batch)")
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
     ticks = np.zeros(tick_budget(max(t_step, step_span(cfg))))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,
                   gait=make_gait(cfg.cassie), noise_v=np.float64(cfg.disturbance.noise_v),
-                  step_error=np.float64(cfg.disturbance.step_error))
+                  step_error=np.float64(cfg.disturbance.step_error), real=real if non_ideal else None)
 
 
 def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
@@ -134,7 +143,7 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     path that leaves the origin at an angle does not begin with a turn.  Both feet are on the
     ground, so the first step's DSP starts from rest; u0 and stance0 are implied by the pose
     (left foot 0.26 m left of the right one)."""
-    del params, u0, stance0
+    del u0, stance0
     c = cassie()
     m = c.mj_model
     dm = mujoco.MjData(m)
@@ -154,9 +163,12 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     root = jnp.stack([x0[0, 0] + ch * rx - sh * ry, x0[1, 0] + sh * rx + ch * ry, pz,
                       hw * w - hz * qz, hw * qx - hz * qy, hw * qy + hz * qx, hw * qz + hz * w])
     d = control.canonical(c, d.replace(qpos=d.qpos.at[r0:r0 + 7].set(root)))
-    feet = outputs.foot_centres(model.robot_terms(c, d))
+    terms = model.robot_terms(c, d)
+    feet = outputs.foot_centres(terms)
+    real = None if params is None or params.real is None else \
+        realism.init_state(c.index.nu, terms.com_vel, jax.random.fold_in(key, 1), dt)
     return State(d=d, warm=control.warm_zeros(c, dt), time=jnp.zeros((), dt),
-                 yaw=outputs.wrap(th), land_xy=feet[0, :2], key=key)
+                 yaw=outputs.wrap(th), land_xy=feet[0, :2], key=key, real=real)
 
 
 def _step_noise(params: Params, state: State, t_step, dt):
@@ -171,8 +183,13 @@ def _context(params: Params, state: State, cmd: StepCommand, f_noise, du_err) ->
     dt = state.d.qpos.dtype
     gait = jax.tree.map(lambda a: jnp.asarray(a, dt), params.gait)
     ctrl = cassie().ctrl_range
+    real = jax.tree.map(lambda a: jnp.asarray(a, dt) if jnp.issubdtype(jnp.asarray(a).dtype, jnp.floating)
+                        else a, params.real)
+    mx = tick.scenario_model(gait.damping)
+    mx_plant = mx if real is None else realism.plant_model(cassie(), real, mx)
     return tick.Context(
-        cmd=cmd, gait=gait, mx=tick.scenario_model(gait.damping), new_st=1 - cmd.stance,
+        cmd=cmd, gait=gait, mx=mx, mx_plant=mx_plant, real=real,
+        new_st=1 - cmd.stance,
         sw=cmd.stance, yaw_from=state.yaw, dyaw=outputs.wrap(cmd.heading - state.yaw),
         land_xy=state.land_xy, f_noise=f_noise, du_err=du_err, t0=state.time,
         push_start=jnp.asarray(params.push_start, dt), push_end=jnp.asarray(params.push_end, dt),
@@ -190,7 +207,8 @@ def _first_tick(ctx: tick.Context, state: State) -> tick.TickState:
                           t_phase=zero, t_step=zero, sw_start=jnp.zeros(3, dt), sw_yaw0=zero,
                           sw_offset=jnp.zeros(2, dt), u_last=ctx.cmd.u_hlip_next,
                           touch=jnp.zeros((), jnp.int32),
-                          fell=~jnp.asarray(ctx.cmd.live, bool))   # a dead step idles throughout
+                          fell=~jnp.asarray(ctx.cmd.live, bool),   # a dead step idles throughout
+                          real=state.real)
 
 
 def _prepare(params: Params, state: State, cmd: StepCommand):
@@ -209,7 +227,7 @@ def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState
     failed = s.fell | ~jnp.all(jnp.isfinite(x_r))
     new = State(d=s.d, warm=s.warm, time=state.time + s.t_step,
                 yaw=outputs.wrap(cmd.heading), land_xy=st_xy + s.u_last + s.sw_offset + du_err,
-                key=key)
+                key=key, real=s.real)
     return new, StepResult(x_robot=x_r, u_robot=sw_xy - st_xy, failed=failed,
                            duration=s.t_step)
 

@@ -10,17 +10,25 @@ the pelvis orientation and the COM height (the H-LIP's DSP has p̈ = 0).
 
 A tick is
 
-    terms = measure(ctx, s)                       whole-body terms at the state
+    dm, s = sense(ctx, s)                         the state as the controller measures it
+    terms = measure(ctx, dm)                      whole-body terms at the measured state
+    s     = estimate(ctx, s, terms)               the stepping law's COM velocity estimate
     s     = lift_off(ctx, s, terms)               first SSP tick: record the swing foot pose
-    cts   = contacts(ctx, s, terms)               contact set and touchdown detection
+    cts   = contacts(ctx, s, dm, terms)           contact set and touchdown detection
     u_des = stepping_target(ctx, s, terms)        H-LIP stepping law, step limits
     des   = desired_outputs(ctx, s, terms, cts, u_des)
-    res   = clf_qp(ctx, s, terms, cts, des)       torques (passive feet on the ground)
-    d     = physics(ctx, s, res.tau)              pushes, step noise, two MJX steps
+    res   = clf_qp(ctx, s, dm, terms, cts, des)   torques (passive feet on the ground)
+    tau, s = actuate(ctx, s, res.tau)             control rate, latency, motor lag and curve
+    d     = physics(ctx, s, tau)                  pushes, step noise, two MJX steps
     s     = advance(ctx, s, cts, u_des, res, d)   phase clock, touchdown → end of step
 
 each a pure function of pytrees (:class:`Context` is constant over one walking step,
-:class:`TickState` is the scan carry).  Phases: DSP for ``T_DSP``; SSP until the swing foot's
+:class:`TickState` is the scan carry).  ``sense``, ``estimate`` and ``actuate`` model a
+non-ideal robot (:mod:`hlip_jax.plants.cassie.realism`: noise, filters, motors; the physics'
+model errors and slope live in ``Context.mx_plant``).  A batch built for the ideal plant has
+no realism data (``Context.real`` is None, a static property of the batch's pytree): those
+stages are then the identity and are not compiled at all, so the ideal program is the
+plain controller.  Phases: DSP for ``T_DSP``; SSP until the swing foot's
 touchdown is *detected* — one of its contact spheres within ``CONTACT_GAP`` of the ground for
 ``TOUCHDOWN_TICKS`` consecutive ticks, no earlier than ``early_contact · T_SSP`` (early
 touchdown) — or until ``LATE_SSP · T_SSP`` (a late foot keeps reaching down; it joins the
@@ -50,7 +58,7 @@ import numpy as np
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax import hlip
 from hlip_jax.plants.base import StepCommand
-from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs
+from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs, realism
 
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
 TOUCHDOWN_TICKS = 3       # consecutive touching ticks that detect a touchdown (bounce filter)
@@ -66,7 +74,10 @@ class Context(NamedTuple):
     """What stays fixed over one walking step SSP⁻_k → SSP⁻_{k+1}."""
     cmd: StepCommand         # the closed loop's command (float fields in the state's dtype)
     gait: object             # plant.Gait of the scenario
-    mx: mjx.Model            # the scenario's MJX model (its leaf-spring damping)
+    mx: mjx.Model            # the controller's MJX model (the scenario's leaf-spring damping)
+    mx_plant: mjx.Model      # the physics' model (mx with the scenario's model errors, slope)
+    real: realism.Realism | None  # the scenario's departures from the ideal plant (None: an
+                                  # ideal batch, nothing compiled)
     new_st: jax.Array        # stance foot of the coming SSP (0 left, 1 right)
     sw: jax.Array            # foot that swings in the coming SSP
     yaw_from: jax.Array      # pelvis heading target at SSP⁻_k [rad]
@@ -95,6 +106,7 @@ class TickState(NamedTuple):
     u_last: jax.Array        # (2,) last step target (stance-relative, world) [m]
     touch: jax.Array         # consecutive ticks the swing foot has touched
     fell: jax.Array          # bool
+    real: realism.RealState | None  # torque queue, motor lag, velocity estimate, noise key
 
 
 class Contacts(NamedTuple):
@@ -109,7 +121,7 @@ class TickLog(NamedTuple):
     """Per-tick record (leading axis: ticks of the step)."""
     com: jax.Array           # (3,) COM [m]
     feet: jax.Array          # (2, 3) foot centres [m]
-    tau: jax.Array           # (10,) motor torques [N m]
+    tau: jax.Array           # (10,) torques the motors apply [N m, motor side]
     V: jax.Array             # CLF value, summed over the output groups
     contact: jax.Array       # (4,) sites in the constraint set
     status: jax.Array        # CLF-QP status (hlip_jax.qp codes)
@@ -118,6 +130,7 @@ class TickLog(NamedTuple):
     u_des: jax.Array         # (2,) step the swing target aims at (stance-relative, world) [m]
     y_err: jax.Array         # (16,) output errors of the active rows (outputs module order)
     grf: jax.Array           # (4, 3) contact forces at the sites, world frame [N] (QP model)
+    spring: jax.Array        # (4,) leaf-spring deflections, shin L, heel L, shin R, heel R [rad]
 
 
 def robot_state(terms: model.RobotTerms, stance):
@@ -155,8 +168,29 @@ def heading_clip(u, heading, sw, gait):
 # ----------------------------------------------------------------------------- stages
 
 
-def measure(ctx: Context, s: TickState) -> model.RobotTerms:
-    return model.robot_terms(cassie(), s.d, ctx.mx)
+def sense(ctx: Context, s: TickState):
+    """(the data the controller measures, state with the next noise key; an idle tick keeps
+    the key)."""
+    if ctx.real is None:
+        return s.d, s
+    dm, real = realism.sense(cassie(), ctx.real, s.real, s.d)
+    return dm, s._replace(real=_if_running(s, real, s.real))
+
+
+def measure(ctx: Context, dm: mjx.Data) -> model.RobotTerms:
+    return model.robot_terms(cassie(), dm, ctx.mx)
+
+
+def estimate(ctx: Context, s: TickState, terms) -> TickState:
+    """The stepping law's COM velocity estimate after this tick's measurement."""
+    if ctx.real is None:
+        return s
+    real = realism.estimate_velocity(ctx.real, s.real, terms.com_vel, control.CONTROL_DT)
+    return s._replace(real=_if_running(s, real, s.real))
+
+
+def _if_running(s: TickState, new, old):
+    return jax.tree.map(lambda a, b: jnp.where(running(s), a, b), new, old)
 
 
 def lift_off(ctx: Context, s: TickState, terms) -> TickState:
@@ -172,11 +206,16 @@ def lift_off(ctx: Context, s: TickState, terms) -> TickState:
                       sw_offset=jnp.where(first, off, s.sw_offset))
 
 
-def contacts(ctx: Context, s: TickState, terms) -> Contacts:
+def contacts(ctx: Context, s: TickState, dm: mjx.Data, terms) -> Contacts:
     """DSP: every touching site (the new stance foot joins when it touches); SSP: the stance
     foot's sites.  Touchdown: the swing foot has touched for ``TOUCHDOWN_TICKS`` ticks in a
-    row (this one included), no earlier than ``early_contact · T_SSP``."""
-    touching = terms.site_pos[:, 2] - model.FOOT_SPHERE_RADIUS < CONTACT_GAP
+    row (this one included), no earlier than ``early_contact · T_SSP``.  Touching: a sphere
+    within ``CONTACT_GAP`` of the ground, or the scenario's spring detector
+    (:func:`realism.touching`)."""
+    if ctx.real is None:
+        touching = terms.site_pos[:, 2] - model.FOOT_SPHERE_RADIUS < CONTACT_GAP
+    else:
+        touching = realism.touching(cassie(), ctx.real, s.d, dm, terms.site_pos, CONTACT_GAP)
     in_dsp = s.phase == DSP
     stance_site = _SIDE_OF_SITE == ctx.new_st
     on = jnp.where(in_dsp, touching, stance_site)
@@ -194,6 +233,8 @@ def stepping_target(ctx: Context, s: TickState, terms) -> jax.Array:
     SSP's adjustable part."""
     cmd = ctx.cmd
     x_r, _ = robot_state(terms, ctx.new_st)
+    if ctx.real is not None:
+        x_r = x_r.at[:, 2].set(s.real.v_est[:2])
     ts = jnp.clip(s.t_phase, 0.0, cmd.t_ssp)
     e_imp = flow_to_impact(x_r - hlip_at(cmd, ts), cmd.t_ssp - ts, cmd.z0)
     u = cmd.u_hlip_next + jnp.sum(cmd.gain * e_imp, axis=-1)
@@ -254,8 +295,8 @@ def desired_outputs(ctx: Context, s: TickState, terms, cts: Contacts, u_des) -> 
     return outputs.Desired(y=y, ydot=yd, yddot=ydd, R=outputs.rot_z(yaw_p), mask=mask)
 
 
-def clf_qp(ctx: Context, s: TickState, terms, cts: Contacts, des: outputs.Desired,
-           settings: clfqp.qp.Settings):
+def clf_qp(ctx: Context, s: TickState, dm: mjx.Data, terms, cts: Contacts,
+           des: outputs.Desired, settings: clfqp.qp.Settings):
     """CLF-QP torques; the foot motor of a foot in the contact set is passive (τ = 0).
     Returns (clfqp.Result, outputs.Measured, dynamics.Condensed)."""
     c = cassie()
@@ -264,7 +305,7 @@ def clf_qp(ctx: Context, s: TickState, terms, cts: Contacts, des: outputs.Desire
         motor = c.index.actuators[f][4]
         lo = lo.at[motor].set(jnp.where(cts.foot[f], 0.0, lo[motor]))
         hi = hi.at[motor].set(jnp.where(cts.foot[f], 0.0, hi[motor]))
-    meas = outputs.measure(terms, s.d.qvel, c.index.root_dof)
+    meas = outputs.measure(terms, dm.qvel, c.index.root_dof)
     cond = dynamics.condense(terms, c.actuation, cts.sites, dynamics.spring_dofs(c))
     return clfqp.solve(meas, des, cond, cts.sites, lo, hi, ctx.gait.gains, s.warm, settings,
                        fallback=ctx.gait.hold_unsolved > 0.5, active=running(s)), meas, cond
@@ -276,13 +317,23 @@ def running(s: TickState) -> jax.Array:
     return (s.phase != DONE) & ~s.fell
 
 
+def actuate(ctx: Context, s: TickState, tau):
+    """(torques the motors apply (nu,) [N m], state): the CLF-QP's ``tau`` through the
+    scenario's control rate, latency, motor lag and torque–speed curve."""
+    if ctx.real is None:
+        return tau, s
+    out, real = realism.actuate(cassie(), ctx.real, s.real, tau, s.d.qvel, running(s),
+                                control.CONTROL_DT)
+    return out, s._replace(real=real)
+
+
 def physics(ctx: Context, s: TickState, tau) -> mjx.Data:
     """Two MJX steps with ``tau`` and the pelvis force of the active pushes and step noise."""
     t = ctx.t0 + s.t_step
     on = (t >= ctx.push_start) & (t < ctx.push_end)
     f = jnp.sum(jnp.where(on[:, None], ctx.push_force, 0.0), axis=0) + ctx.f_noise
     return control.physics(cassie(), s.d, tau, jnp.concatenate([f, jnp.zeros(1, f.dtype)]),
-                           mx=ctx.mx)
+                           mx=ctx.mx_plant)
 
 
 def advance(ctx: Context, s: TickState, cts: Contacts, u_des, res, d_new) -> TickState:
@@ -316,19 +367,22 @@ def fell(d: mjx.Data) -> jax.Array:
 
 def tick(ctx: Context, s: TickState, settings):
     """One control tick: the stages of the module doc.  Returns (TickState, TickLog)."""
-    terms = measure(ctx, s)
+    dm, s = sense(ctx, s)
+    terms = measure(ctx, dm)
+    s = estimate(ctx, s, terms)
     s = lift_off(ctx, s, terms)
-    cts = contacts(ctx, s, terms)
+    cts = contacts(ctx, s, dm, terms)
     u_des = stepping_target(ctx, s, terms)
     des = desired_outputs(ctx, s, terms, cts, u_des)
-    res, meas, cond = clf_qp(ctx, s, terms, cts, des, settings)
-    d_new = physics(ctx, s, res.tau)
+    res, meas, cond = clf_qp(ctx, s, dm, terms, cts, des, settings)
+    tau, s = actuate(ctx, s, res.tau)
+    d_new = physics(ctx, s, tau)
     e, _ = outputs.errors(meas, des)
     c0 = dynamics.N_LOOP_ROWS
     grf = (cond.lam_tau @ res.tau + cond.lam0)[c0:c0 + dynamics.N_CONTACT_ROWS].reshape(4, 3)
-    log = TickLog(com=terms.com, feet=outputs.foot_centres(terms), tau=res.tau, V=jnp.sum(res.V),
+    log = TickLog(com=terms.com, feet=outputs.foot_centres(terms), tau=tau, V=jnp.sum(res.V),
                   contact=cts.sites, status=res.status, pelvis=s.d.qpos[:7], phase=s.phase,
-                  u_des=u_des, y_err=e, grf=grf)
+                  u_des=u_des, y_err=e, grf=grf, spring=s.d.qpos[realism.layout(cassie()).spring_qpos])
     return advance(ctx, s, cts, u_des, res, d_new), log
 
 
