@@ -9,7 +9,10 @@ Cases:
   sweep       ``batch`` scenarios spread evenly over the sweep file's, duration overridden;
   bench       the benchmark's straight lines (``hlip_jax.bench.configs``);
   sweep-qp25  the sweep's scenarios with the CLF-QP's ADMM budget cut to one convergence check
-              (25 iterations): the time it saves is the ADMM iterations' cost in the sweep.
+              (25 iterations): the time it saves is the ADMM iterations' cost in the sweep;
+  sweep-realism  the sweep's scenarios with the non-ideal robot's stages compiled in
+              (``Shapes.non_ideal``) but every value ideal: the cost of those stages alone
+              (the sweep itself must be ideal).
 
 Per case: compile + first call [s], second call [s], simulated robot-seconds per wall-second
 (robots × steps × the H-LIP's T_SSP + T_DSP over the second call), the fraction of robots that
@@ -46,7 +49,13 @@ def run_case(name, sweep_file, batch, duration):
 
     from hlip_jax import bench, rollout, steplog
 
-    b, static = rollout.build(_cases(name, sweep_file, batch, duration))
+    cfgs = _cases(name, sweep_file, batch, duration)
+    shapes = rollout.shapes_of(cfgs)
+    if name == "sweep-realism":
+        if shapes.non_ideal:
+            raise SystemExit("sweep-realism: the sweep must be ideal (no [realism] departures)")
+        shapes = shapes._replace(non_ideal=True)
+    b, static = rollout.build(cfgs, shapes=shapes)
     t_first, t_run, out = bench.timed_run(b, static)
     sim = float(np.sum(np.asarray(b.t_ssp + b.t_dsp)) * static.n_steps)
     walked = float(np.mean(np.asarray(out["status"]) == steplog.STATUS_OK))
@@ -86,7 +95,7 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=2.0)
     ap.add_argument("--sweep", default="sweeps/coverage_study.toml")
     ap.add_argument("--cases", nargs="+", default=["sweep", "bench", "sweep-qp25"],
-                    choices=["sweep", "bench", "sweep-qp25"])
+                    choices=["sweep", "bench", "sweep-qp25", "sweep-realism"])
     ap.add_argument("--json", default=None)
     ap.add_argument("--per-step", action="store_true")
     a = ap.parse_args(argv)

@@ -283,7 +283,8 @@ def cmd_run(args) -> int:
         return EXIT_INCOMPLETE
     print(f"results: {out} ({res.n_scenarios} scenarios, {res.seconds:.1f} s)")
     if not args.no_report:
-        html, md = report.write_report(out)
+        with runner.on_host():
+            html, md = report.write_report(out)
         print(f"report: {html}")
         print(f"        {md}")
     return EXIT_OK
@@ -313,7 +314,9 @@ def cmd_report(args) -> int:
     if not d.is_dir():
         raise UserError(f"{d}: results directory not found")
     store.check_chunks(d)           # a truncated or altered chunk is named before any figure
-    html, md = report.write_report(d, heatmap_axes=args.heatmap)
+    from hlip_jax import runner
+    with runner.on_host():
+        html, md = report.write_report(d, heatmap_axes=args.heatmap)
     print(f"report: {html}")
     print(f"        {md}")
     return EXIT_OK
@@ -346,7 +349,9 @@ def cmd_coverage(args) -> int:
     if not 0.0 < q < 1.0:
         raise UserError(f"--q: expected a level in (0, 1), got {q}")
     store.check_chunks(d)
-    path = store.write_coverage(d, q, _train_on(args.train_on))
+    from hlip_jax import runner
+    with runner.on_host():
+        path = store.write_coverage(d, q, _train_on(args.train_on))
     for r in store.read_coverage(d):
         print(f"{r['group']:<32} {r['plane']:<9} {r['w_method']:<14} {r['split']:<12} "
               f"coverage {r['coverage']} [{r['ci_low']}, {r['ci_high']}] of {r['test_samples']}")

@@ -201,7 +201,7 @@ def estimate_w(samples, mask=None, method: str = "box", quantile: float = 0.99):
     if P.shape[0] == 0:
         raise ValueError("estimate_w: no valid samples (mask selects none)")
     if method == "box":
-        return Box(jnp.asarray(P.min(axis=0)), jnp.asarray(P.max(axis=0)))
+        return Box(P.min(axis=0), P.max(axis=0))
     if method == "quantile":
         if not 0.5 < quantile <= 1.0:
             raise ValueError(f"quantile: must be in (0.5, 1], got {quantile}")

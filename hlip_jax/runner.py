@@ -221,8 +221,9 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
                seconds=man.get("seconds", 0.0) + (time.monotonic() - t0))
     store._write_manifest(out, man)
     if complete:
-        store.write_summary(out)
-        store.write_coverage(out)
+        with on_host():
+            store.write_summary(out)
+            store.write_coverage(out)
     return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0)
 
 
@@ -240,6 +241,17 @@ def _verify_stored(out: Path, ranges, bar) -> set[int]:
         else:
             bar.note(f"{p.name}: {why}; simulating it again")
     return good
+
+
+@contextlib.contextmanager
+def on_host():
+    """Run the analysis (invariant sets, coverage, report) on the host CPU.  Its arrays are
+    tiny and their shapes change from scenario to scenario (the number of valid steps), so
+    on an accelerator every call pays a kernel launch and often a compile: on an H100 the
+    analysis of one 624-scenario chunk ran for minutes after its simulation had ended."""
+    import jax
+    with jax.default_device(jax.local_devices(backend="cpu")[0]):
+        yield
 
 
 def _step_news(bar, done: int, chunk: int, n_chunks: int, every: float = 5.0):
@@ -278,8 +290,9 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
                              f"{type(err).__name__}: {err}") from None
         arrays = store._log_to_arrays(log, b - a)
         arrays["index"] = np.arange(a, b, dtype=np.int64)
-        mets = [metrics.scenario_metrics(arrays, s, with_coverage, metrics.first_push(chunk_cfgs[s]))
-                for s in range(b - a)]
+        with on_host():
+            mets = [metrics.scenario_metrics(arrays, s, with_coverage, metrics.first_push(chunk_cfgs[s]))
+                    for s in range(b - a)]
         for k in metrics.SUMMARY_METRICS:
             arrays[f"metric.{k}"] = np.asarray([m[k] for m in mets], np.float64)
         store.save_npz_atomic(p, arrays)

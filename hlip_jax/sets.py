@@ -103,13 +103,12 @@ class Zonotope(NamedTuple):
     def contains(self, points, tol: float = 1e-9):
         """Bool per point through the exact facets; ``tol`` relative to the set's size."""
         z = _as_jnp(self if self.normals is not None else zonotope_hrep(self))
-        x = jnp.asarray(points)
+        x = _as_jnp(points)
         if (z.prefix_offsets is not None and not isinstance(x, jax.core.Tracer)
                 and not isinstance(z.normals, jax.core.Tracer) and x.size >= 8192 * x.shape[-1]):
             return _zono_contains_two_pass(z, x, tol)
         N, h = _pad_facets(z.normals, z.offsets, 1.0)
-        zp = z._replace(normals=N, offsets=h, prefix_offsets=None)
-        return _padded_call(lambda p: _zono_contains(zp, p, tol), x)
+        return _padded_call(lambda p: _zono_contains(z.center, N, h, p, tol), x)
 
     def volume(self):
         """2ⁿ Σ_{|S|=n} |det G_S| over all n-subsets S of the generators (exact)."""
@@ -210,7 +209,12 @@ class MRPI(NamedTuple):
 
 
 def _as_jnp(t):
-    return jax.tree_util.tree_map(jnp.asarray, t)
+    """Leaves ready for the jitted kernels: JAX arrays (and tracers) as they are, anything else
+    as numpy.  A host array goes to the kernel as an argument; converting it with
+    ``jnp.asarray`` first would run an eager op that compiles once per new shape, and set
+    sizes change from scenario to scenario (the analysis of one 312-robot chunk spent
+    minutes compiling such ops)."""
+    return jax.tree_util.tree_map(lambda a: a if isinstance(a, jax.Array) else np.asarray(a), t)
 
 
 def _bucket(k: int) -> int:
@@ -225,8 +229,9 @@ def _pad_facets(N, b, fill):
     pad = _bucket(F) - F
     if pad == 0:
         return N, b
-    return (jnp.concatenate([N, jnp.zeros((pad, N.shape[1]), N.dtype)]),
-            jnp.concatenate([b, jnp.full((pad,), fill, b.dtype)]))
+    xp = jnp if isinstance(N, jax.Array) or isinstance(b, jax.Array) else np
+    return (xp.concatenate([N, xp.zeros((pad, N.shape[1]), N.dtype)]),
+            xp.concatenate([b, xp.full((pad,), fill, b.dtype)]))
 
 
 def _padded_call(fn, x):
@@ -236,8 +241,9 @@ def _padded_call(fn, x):
     k = flat.shape[0]
     if k == 0:
         return jnp.zeros(batch, bool)
-    out = fn(jnp.pad(flat, ((0, _bucket(k) - k), (0, 0))))
-    return out[:k].reshape(batch)
+    if isinstance(flat, jax.Array):            # traced or on a device: stay there
+        return fn(jnp.pad(flat, ((0, _bucket(k) - k), (0, 0))))[:k].reshape(batch)
+    return np.asarray(fn(np.pad(flat, ((0, _bucket(k) - k), (0, 0)))))[:k].reshape(batch)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -280,10 +286,12 @@ def _hpoly_contains(normals, offsets, center, x, tol, chunk: int = _CHUNK):
 
 
 @partial(jax.jit, static_argnames=("chunk",))
-def _zono_contains(z: Zonotope, x, tol, chunk: int = _CHUNK):
-    """max_f |N_f (x − c)| / h_f ≤ 1 + tol per point (symmetric facet pairs tested at once)."""
-    Ns = z.normals / jnp.maximum(z.offsets, jnp.finfo(z.normals.dtype).tiny)[:, None]
-    return _blocked(lambda blk: jnp.max(jnp.abs((blk - z.center) @ Ns.T), axis=-1) <= 1.0 + tol,
+def _zono_contains(center, normals, offsets, x, tol, chunk: int = _CHUNK):
+    """max_f |N_f (x − c)| / h_f ≤ 1 + tol per point (symmetric facet pairs tested at once).
+    Only the facets enter (padded to a bucket size), not the generators, whose number
+    changes from set to set: one compile serves sets of similar facet counts."""
+    Ns = normals / jnp.maximum(offsets, jnp.finfo(normals.dtype).tiny)[:, None]
+    return _blocked(lambda blk: jnp.max(jnp.abs((blk - center) @ Ns.T), axis=-1) <= 1.0 + tol,
                     x, chunk, Ns.shape[0])
 
 
@@ -316,8 +324,7 @@ def _zono_contains_two_pass(z: Zonotope, x, tol):
     und = np.nonzero(state.reshape(-1) == 2)[0]
     if und.size:
         N, h = _pad_facets(z.normals, z.offsets, 1.0)
-        zp = z._replace(normals=N, offsets=h, prefix_offsets=None)
-        inside[und] = np.asarray(_padded_call(lambda p: _zono_contains(zp, p, tol),
+        inside[und] = np.asarray(_padded_call(lambda p: _zono_contains(z.center, N, h, p, tol),
                                               jnp.asarray(flat[und])))
     return jnp.asarray(inside.reshape(x.shape[:-1]))
 
@@ -446,8 +453,8 @@ def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
     P = np.abs(_small_matmul_t(N, G))  # |N_f · g_k|, (F, m)
     h = P.sum(axis=1)
     if 0 < n_prefix < G.shape[0]:
-        h0 = jnp.asarray(P[:len(N0), :n_prefix].sum(axis=1))
-    return Zonotope(jnp.asarray(c), jnp.asarray(G), jnp.asarray(N), jnp.asarray(h), h0)
+        h0 = P[:len(N0), :n_prefix].sum(axis=1)
+    return Zonotope(c, G, N, h, h0)
 
 
 def _small_matmul_t(N: np.ndarray, G: np.ndarray) -> np.ndarray:
@@ -746,7 +753,7 @@ def _mrpi_zonotope(A_cl, W: Zonotope, eps, s_max, nil_tol) -> MRPI:
         outer = inner
     else:  # scaling about the centre keeps the facet normals
         k = 1.0 / (1.0 - a)
-        scaled = lambda v: None if v is None else jnp.asarray(_f64(v) * k)
+        scaled = lambda v: None if v is None else _f64(v) * k
         outer = Zonotope(inner.center, scaled(inner.generators), inner.normals,
                          scaled(inner.offsets), scaled(inner.prefix_offsets))
     return MRPI(inner, outer, int(s), float(a), float(eps), bool(exact))

@@ -211,14 +211,18 @@ def contacts(ctx: Context, s: TickState, dm: mjx.Data, terms) -> Contacts:
     foot's sites.  Touchdown: the swing foot has touched for ``TOUCHDOWN_TICKS`` ticks in a
     row (this one included), no earlier than ``early_contact · T_SSP``.  Touching: a sphere
     within ``CONTACT_GAP`` of the ground, or the scenario's spring detector
-    (:func:`realism.touching`)."""
+    (:func:`realism.touching`); with the springs the contact set follows the gait, the way
+    hardware controllers use them: both feet in DSP (the landing one was just detected), the
+    stance foot in SSP, and the springs decide only the touchdown that ends the SSP."""
     if ctx.real is None:
         touching = terms.site_pos[:, 2] - model.FOOT_SPHERE_RADIUS < CONTACT_GAP
+        dsp_set = touching
     else:
         touching = realism.touching(cassie(), ctx.real, s.d, dm, terms.site_pos, CONTACT_GAP)
+        dsp_set = touching | ctx.real.spring_touchdown
     in_dsp = s.phase == DSP
     stance_site = _SIDE_OF_SITE == ctx.new_st
-    on = jnp.where(in_dsp, touching, stance_site)
+    on = jnp.where(in_dsp, dsp_set, stance_site)
     foot = jnp.stack([on[0] | on[1], on[2] | on[3]])
     sw_touch = jnp.any(touching & ~stance_site)
     count = jnp.where(sw_touch, s.touch + 1, 0)
