@@ -82,7 +82,7 @@ def _touch_args(z, phase, t_phase, touch):
     site = np.zeros((4, 3))
     site[:, 2] = np.asarray(z) + model.FOOT_SPHERE_RADIUS
     terms = types.SimpleNamespace(site_pos=jnp.asarray(site))
-    ctx = types.SimpleNamespace(new_st=jnp.int32(0), gait=types.SimpleNamespace(early_contact=0.7),
+    ctx = types.SimpleNamespace(new_st=jnp.int32(0), real=None, gait=types.SimpleNamespace(early_contact=0.7),
                                 cmd=types.SimpleNamespace(t_ssp=0.3))
     s = types.SimpleNamespace(phase=jnp.int32(phase), t_phase=jnp.asarray(t_phase),
                               touch=jnp.int32(touch))
@@ -96,18 +96,18 @@ def test_contacts_and_touchdown_detection():
     down, up = 0.001, 0.02
     n = tick.TOUCHDOWN_TICKS
     ctx, s, terms = _touch_args([down, down, down, up], tick.SSP, 0.25, n - 1)
-    c = tick.contacts(ctx, s, terms)
+    c = tick.contacts(ctx, s, None, terms)
     assert np.asarray(c.sites).tolist() == [1, 1, 0, 0] and np.asarray(c.foot).tolist() == [True, False]
     assert int(c.count) == n and bool(c.touchdown)
     ctx, s, terms = _touch_args([down, down, down, up], tick.SSP, 0.25, n - 2)
-    assert not bool(tick.contacts(ctx, s, terms).touchdown)            # not long enough yet
+    assert not bool(tick.contacts(ctx, s, None, terms).touchdown)            # not long enough yet
     ctx, s, terms = _touch_args([down, down, down, up], tick.SSP, 0.19, n + 5)
-    assert not bool(tick.contacts(ctx, s, terms).touchdown)            # before 0.7 · 0.3 s
+    assert not bool(tick.contacts(ctx, s, None, terms).touchdown)            # before 0.7 · 0.3 s
     ctx, s, terms = _touch_args([down, down, up, up], tick.SSP, 0.25, n + 5)
-    c = tick.contacts(ctx, s, terms)
+    c = tick.contacts(ctx, s, None, terms)
     assert int(c.count) == 0 and not bool(c.touchdown)                 # bounce resets
     ctx, s, terms = _touch_args([down, up, down, down], tick.DSP, 0.01, 0)
-    c = tick.contacts(ctx, s, terms)
+    c = tick.contacts(ctx, s, None, terms)
     assert np.asarray(c.sites).tolist() == [1, 0, 1, 1] and int(c.count) == 0
 
 
