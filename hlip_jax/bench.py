@@ -76,6 +76,48 @@ def admm_share(t_full: float, t_short: float, it_full: int, it_short: int) -> fl
     return (t_full - t_short) * it_full / (it_full - it_short) / t_full
 
 
+def _physics_only_rate(B: int, ticks: int, steps: int) -> float:
+    """Physics steps per second of B zero-torque robots over ``ticks`` control ticks (the
+    compiled call timed on its second run)."""
+    import jax
+
+    from hlip_jax.plants.cassie import control, model
+    from hlip_jax.plants.cassie import plant as cassie_plant
+
+    cassie = cassie_plant.cassie()
+    d = model.make_batch(cassie, B, jax.random.PRNGKey(0))
+    physics_only = jax.jit(jax.vmap(lambda d: control.zero_torque_rollout(cassie, d, ticks)))
+    jax.block_until_ready(physics_only(d))
+    t0 = time.perf_counter()
+    jax.block_until_ready(physics_only(d))
+    return B * steps / (time.perf_counter() - t0)
+
+
+def _admm_run(batch, static, B: int, steps: int, rows: list, emit) -> list[str]:
+    """The batch again on one device with the CLF-QP's ADMM budget cut to one convergence
+    check (same scenarios, only the static budget differs); adds the ADMM share to the
+    one-device row of ``rows`` and returns the ADMM table's rows."""
+    import jax
+
+    from hlip_jax import rollout
+    full = static.plant_settings.max_iter
+    short = static.plant_settings.check_interval
+    s2 = static._replace(plant_settings=static.plant_settings._replace(max_iter=short))
+    placed = rollout.place(batch, rollout.scenario_sharding(jax.devices()[:1]))
+    try:
+        _, t_short, _ = timed_run(placed, s2)
+    except Exception as exc:  # noqa: BLE001
+        emit(f"batch {B}, ADMM budget {short}: failed: {type(exc).__name__}")
+        return []
+    one = [r for r in rows if r["batch"] == B and r["devices"] == 1]
+    if not one:
+        return []
+    share = admm_share(one[0]["run_s"], t_short, full, short)
+    one[0].update(admm_share=share, run_s_short_qp=t_short)
+    return [f"| {B} | {full} | {one[0]['run_s']:.2f} | {one[0]['physics_steps_per_s']:,.0f} | "
+            f"{share:.2f} |", f"| {B} | {short} | {t_short:.2f} | {B * steps / t_short:,.0f} | |"]
+
+
 def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] = (1,),
                 emit: Callable[[str], None] = print, admm: bool = False) -> list[dict]:
     """Run the benchmark for every batch size × device count; ``emit`` gets the markdown
@@ -87,13 +129,11 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
     import numpy as np
 
     from hlip_jax import rollout, steplog
-    from hlip_jax.plants.cassie import control, model
-    from hlip_jax.plants.cassie import plant as cassie_plant
+    from hlip_jax.plants.cassie import control
 
     emit(f"backend {jax.default_backend()} device {jax.devices()[0].device_kind}; "
          f"{duration} s per robot")
     emit(HEADER)
-    cassie = cassie_plant.cassie()
     rows, admm_rows = [], []
     for B in batches:
         batch, static = rollout.build(configs(B, duration))
@@ -119,12 +159,7 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
             emit(f"batch {B} on {n_dev} device(s): compile + first {t_first:.1f} s, "
                  f"run {t_run:.2f} s, {B * steps / t_run:,.0f} physics steps/s")
             runs.append((n_dev, t_first, t_run, np.asarray(out["status"]), peak))
-        d = model.make_batch(cassie, B, jax.random.PRNGKey(0))
-        physics_only = jax.jit(jax.vmap(lambda d: control.zero_torque_rollout(cassie, d, ticks)))
-        jax.block_until_ready(physics_only(d))
-        t3 = time.perf_counter()
-        jax.block_until_ready(physics_only(d))
-        prate = B * steps / (time.perf_counter() - t3)
+        prate = _physics_only_rate(B, ticks, steps)
         for n_dev, t_first, t_run, status, peak in runs:
             rate = B * steps / t_run
             row = dict(batch=B, devices=n_dev, steps=static.n_steps, compile_first_s=t_first,
@@ -138,23 +173,7 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
                  f"{row['robot_s_per_s']:,.1f} | {rate:,.0f} | {prate:,.0f} | {row['ratio']:.2f} | "
                  f"{row['walking']:.3f} | {mem} |")
         if admm:
-            # same scenarios, only the static CLF-QP budget differs (the batch data is shared)
-            full = static.plant_settings.max_iter
-            short = static.plant_settings.check_interval
-            s2 = static._replace(plant_settings=static.plant_settings._replace(max_iter=short))
-            placed = rollout.place(batch, rollout.scenario_sharding(jax.devices()[:1]))
-            try:
-                _, t_short, _ = timed_run(placed, s2)
-            except Exception as exc:  # noqa: BLE001
-                emit(f"batch {B}, ADMM budget {short}: failed: {type(exc).__name__}")
-                continue
-            one = [r for r in rows if r["batch"] == B and r["devices"] == 1]
-            if one:
-                share = admm_share(one[0]["run_s"], t_short, full, short)
-                one[0].update(admm_share=share, run_s_short_qp=t_short)
-                admm_rows.append(f"| {B} | {full} | {one[0]['run_s']:.2f} | "
-                                 f"{one[0]['physics_steps_per_s']:,.0f} | {share:.2f} |")
-                admm_rows.append(f"| {B} | {short} | {t_short:.2f} | {B * steps / t_short:,.0f} | |")
+            admm_rows += _admm_run(batch, static, B, steps, rows, emit)
     if admm_rows:
         emit(ADMM_HEADER)
         for r in admm_rows:

@@ -345,118 +345,130 @@ def _status(s: Settings, res, pinf_q, dinf_q, factor):
     return solved, pinf, dinf
 
 
-def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
-    """Solve one problem (no batch axes); traced under jit / vmap."""
-    dtype = q.dtype
-    n, m = P.shape[0], A.shape[0]
-    # Invalid data: non-finite P, q, A, NaN bounds or l > u.  Replaced by a harmless problem
-    # so that nothing non-finite enters the iteration; reported as UNSOLVED.
+def _sanitise(P, q, A, l, u, x0, y0, warm: bool):
+    """Invalid data (non-finite P, q, A, NaN bounds or l > u) replaced by a harmless problem, so
+    that nothing non-finite enters the iteration (reported as UNSOLVED); a non-finite warm start
+    ignored (cold start, not an error); |bound| ≥ 1e20 → ±inf.
+    Returns (P, q, A, l, u, x0, y0, valid, l_inf, u_inf)."""
+    n = P.shape[0]
     valid = (jnp.all(jnp.isfinite(P)) & jnp.all(jnp.isfinite(q)) & jnp.all(jnp.isfinite(A))
              & ~jnp.any(jnp.isnan(l)) & ~jnp.any(jnp.isnan(u)) & jnp.all(l <= u))
-    if warm:  # a non-finite warm start is ignored (cold start), not an error
+    if warm:
         warm_ok = jnp.all(jnp.isfinite(x0)) & jnp.all(jnp.isfinite(y0))
         x0 = jnp.where(warm_ok, x0, 0.0)
         y0 = jnp.where(warm_ok, y0, 0.0)
-    P = jnp.where(valid, P, jnp.eye(n, dtype=dtype))
+    P = jnp.where(valid, P, jnp.eye(n, dtype=q.dtype))
     q = jnp.where(valid, q, 0.0)
     A = jnp.where(valid, A, 0.0)
     l = jnp.where(valid, l, -jnp.inf)
     u = jnp.where(valid, u, jnp.inf)
     P = 0.5 * (P + P.T)
-
-    # Infinite bounds: |bound| ≥ 1e20 → ±inf.
     l_inf = l <= -INF_BOUND
     u_inf = u >= INF_BOUND
     l = jnp.where(l_inf, -jnp.inf, l)
     u = jnp.where(u_inf, jnp.inf, u)
+    return P, q, A, l, u, x0, y0, valid, l_inf, u_inf
 
-    # Ruiz equilibration + cost scaling.
-    Ps, qs, As, D, E, c = _ruiz(P, q, A, s.scaling)
-    d = _Scaled(Ps, qs, As, E * l, E * u, l_inf, u_inf, D, E, c)
 
-    # Per-row ρ and the first factorisation.
+def _initial_state(d: "_Scaled", s: Settings, x0, y0, valid, warm: bool) -> "_State":
+    """ρ, the first factorisation and the first iterate: cold (0) or warm (x̄ = D⁻¹x,
+    ȳ = c E⁻¹ y, z̄ = Āx̄)."""
+    dtype = d.q.dtype
+    n, m = d.q.shape[0], d.A.shape[0]
     rho = jnp.asarray(s.rho, dtype)
-    rho_vec = _rho_vec(rho, d)
-    F = _factor(d, s.sigma, rho_vec, s.linsys)
-
-    # Initial iterate: cold (0) or warm (x̄ = D⁻¹x, ȳ = c E⁻¹ y, z̄ = Āx̄).
+    F = _factor(d, s.sigma, _rho_vec(rho, d), s.linsys)
     if warm:
-        x = jnp.where(valid, x0 / D, 0.0)
-        y = jnp.where(valid, c * y0 / E, 0.0)
+        x = jnp.where(valid, x0 / d.D, 0.0)
+        y = jnp.where(valid, d.c * y0 / d.E, 0.0)
         z = jnp.clip(_mv(d.A, x), d.l, d.u)
     else:
         x = jnp.zeros((n,), dtype)
         y = jnp.zeros((m,), dtype)
         z = jnp.zeros((m,), dtype)
-
     zero = jnp.zeros((), dtype)
-    st = _State(x, z, y, jnp.zeros_like(x), jnp.zeros_like(y), rho, F,
-                jnp.zeros((), jnp.int32), jnp.where(valid, 0, UNSOLVED).astype(jnp.int32),
-                ~valid, zero + jnp.inf, zero + jnp.inf)
+    return _State(x, z, y, jnp.zeros_like(x), jnp.zeros_like(y), rho, F,
+                  jnp.zeros((), jnp.int32), jnp.where(valid, 0, UNSOLVED).astype(jnp.int32),
+                  ~valid, zero + jnp.inf, zero + jnp.inf)
 
-    K = s.check_interval
-    exact_blocks = s.max_iter % K == 0
-    rho_every = s.adaptive_rho_interval
 
-    def block(st: _State) -> _State:
-        rho_vec = _rho_vec(st.rho, d)
+def _iterate(d: "_Scaled", s: Settings, st: "_State", rho_vec):
+    """``check_interval`` ADMM steps (the last, partial block stops at max_iter exactly).
+    Returns (x, z, y, dx, dy, it)."""
+    exact_blocks = s.max_iter % s.check_interval == 0
 
-        def it_body(_, carry):
-            x, z, y, dx, dy, it = carry
-            xn, zn, yn = _admm_step(d, s, rho_vec, st.F, x, z, y)
-            if exact_blocks:
-                return xn, zn, yn, xn - x, yn - y, it + 1
-            go = it < s.max_iter  # honour max_iter exactly in the last, partial block
-            return (jnp.where(go, xn, x), jnp.where(go, zn, z), jnp.where(go, yn, y),
-                    jnp.where(go, xn - x, dx), jnp.where(go, yn - y, dy), it + go.astype(it.dtype))
+    def it_body(_, carry):
+        x, z, y, dx, dy, it = carry
+        xn, zn, yn = _admm_step(d, s, rho_vec, st.F, x, z, y)
+        if exact_blocks:
+            return xn, zn, yn, xn - x, yn - y, it + 1
+        go = it < s.max_iter
+        return (jnp.where(go, xn, x), jnp.where(go, zn, z), jnp.where(go, yn, y),
+                jnp.where(go, xn - x, dx), jnp.where(go, yn - y, dy), it + go.astype(it.dtype))
 
-        x, z, y, dx, dy, it = lax.fori_loop(0, K, it_body, (st.x, st.z, st.y, st.dx, st.dy, st.it),
-                                            unroll=_UNROLL)
+    return lax.fori_loop(0, s.check_interval, it_body,
+                         (st.x, st.z, st.y, st.dx, st.dy, st.it), unroll=_UNROLL)
 
-        # Termination (unscaled OSQP criteria), then infeasibility certificates.
-        prim, prim_norm, dual, dual_norm, (Ax, Px, Aty) = _residuals(d, x, z, y)
-        res = (prim, prim_norm, dual, dual_norm)
-        pq, dq = _primal_infeasibility(d, dy), _dual_infeasibility(d, dx)
-        solved, pinf, dinf = _status(s, res, pq, dq, 1.0)
-        status = jnp.where(solved, SOLVED, jnp.where(pinf, PRIMAL_INFEASIBLE,
-                           jnp.where(dinf, DUAL_INFEASIBLE, 0)))
-        # At max_iter: OSQP's "inaccurate" statuses at tolerances loosened ×10.
-        a_solved, a_pinf, a_dinf = _status(s, res, pq, dq, _INACCURATE_FACTOR)
-        status_max = jnp.where(a_solved, SOLVED_INACCURATE, jnp.where(
-            a_pinf, PRIMAL_INFEASIBLE_INACCURATE, jnp.where(a_dinf, DUAL_INFEASIBLE_INACCURATE, MAX_ITER)))
-        status = jnp.where((status == 0) & (it >= s.max_iter), status_max, status)
-        finite = jnp.isfinite(prim) & jnp.isfinite(dual)
-        status = jnp.where(finite, status, UNSOLVED).astype(jnp.int32)
-        done = status != 0
 
-        # Adaptive ρ (OSQP's rule, scaled residual ratios), on the fixed interval.
-        rho, F = st.rho, st.F
-        if s.adaptive_rho:
-            pr = _ninf(Ax - z) / (jnp.maximum(_ninf(Ax), _ninf(z)) + _DIV_TOL)
-            du = _ninf(Px + d.q + Aty) / (
-                jnp.maximum(jnp.maximum(_ninf(Px), _ninf(Aty)), _ninf(d.q)) + _DIV_TOL)
-            rho_new = jnp.clip(st.rho * jnp.sqrt(pr / (du + _DIV_TOL)), _RHO_MIN, _RHO_MAX)
-            change = ((rho_new > st.rho * s.adaptive_rho_tolerance)
-                      | (rho_new < st.rho / s.adaptive_rho_tolerance))
-            change = change & (it % rho_every == 0) & ~done & jnp.isfinite(rho_new)
-            rho = jnp.where(change, rho_new, st.rho)
-            F = lax.cond(change, lambda: _factor(d, s.sigma, _rho_vec(rho, d), s.linsys),
-                         lambda: st.F)
+def _block_status(d: "_Scaled", s: Settings, x, z, y, dx, dy, it):
+    """Termination (unscaled OSQP criteria), then infeasibility certificates; at max_iter
+    OSQP's "inaccurate" statuses at tolerances loosened ×10.
+    Returns (status, prim, dual, (Ax, Px, Aᵀy))."""
+    prim, prim_norm, dual, dual_norm, prods = _residuals(d, x, z, y)
+    res = (prim, prim_norm, dual, dual_norm)
+    pq, dq = _primal_infeasibility(d, dy), _dual_infeasibility(d, dx)
+    solved, pinf, dinf = _status(s, res, pq, dq, 1.0)
+    status = jnp.where(solved, SOLVED, jnp.where(pinf, PRIMAL_INFEASIBLE,
+                       jnp.where(dinf, DUAL_INFEASIBLE, 0)))
+    a_solved, a_pinf, a_dinf = _status(s, res, pq, dq, _INACCURATE_FACTOR)
+    status_max = jnp.where(a_solved, SOLVED_INACCURATE, jnp.where(
+        a_pinf, PRIMAL_INFEASIBLE_INACCURATE, jnp.where(a_dinf, DUAL_INFEASIBLE_INACCURATE, MAX_ITER)))
+    status = jnp.where((status == 0) & (it >= s.max_iter), status_max, status)
+    finite = jnp.isfinite(prim) & jnp.isfinite(dual)
+    return jnp.where(finite, status, UNSOLVED).astype(jnp.int32), prim, dual, prods
 
-        new = _State(x, z, y, dx, dy, rho, F, it, status, done, prim, dual)
-        # A finished problem is frozen (matters under vmap, where the loop runs for the batch).
-        return jax.tree.map(lambda a, b: jnp.where(st.done, a, b), st, new)
 
-    st = lax.while_loop(lambda st: ~st.done, block, st)
+def _adapt_rho(d: "_Scaled", s: Settings, st: "_State", z, prods, it, done):
+    """OSQP's adaptive ρ on the scaled residual ratios, on the fixed interval; refactorises
+    only when ρ changes.  Returns (ρ, factorisation)."""
+    if not s.adaptive_rho:
+        return st.rho, st.F
+    Ax, Px, Aty = prods
+    pr = _ninf(Ax - z) / (jnp.maximum(_ninf(Ax), _ninf(z)) + _DIV_TOL)
+    du = _ninf(Px + d.q + Aty) / (
+        jnp.maximum(jnp.maximum(_ninf(Px), _ninf(Aty)), _ninf(d.q)) + _DIV_TOL)
+    rho_new = jnp.clip(st.rho * jnp.sqrt(pr / (du + _DIV_TOL)), _RHO_MIN, _RHO_MAX)
+    change = ((rho_new > st.rho * s.adaptive_rho_tolerance)
+              | (rho_new < st.rho / s.adaptive_rho_tolerance))
+    change = change & (it % s.adaptive_rho_interval == 0) & ~done & jnp.isfinite(rho_new)
+    rho = jnp.where(change, rho_new, st.rho)
+    F = lax.cond(change, lambda: _factor(d, s.sigma, _rho_vec(rho, d), s.linsys), lambda: st.F)
+    return rho, F
 
-    # Unscale: x = D x̄, y = E ȳ / c, z = E⁻¹ z̄.
-    x = d.D * st.x
-    y = d.E * st.y / d.c
-    z = st.z / d.E
-    nan = jnp.asarray(jnp.nan, dtype)
-    x = jnp.where(valid, x, nan)
-    y = jnp.where(valid, y, nan)
-    z = jnp.where(valid, z, nan)
+
+def _block(d: "_Scaled", s: Settings, st: "_State") -> "_State":
+    """One block of the outer loop: iterate, check, adapt ρ.  A finished problem is frozen
+    (matters under vmap, where the loop runs for the batch)."""
+    x, z, y, dx, dy, it = _iterate(d, s, st, _rho_vec(st.rho, d))
+    status, prim, dual, prods = _block_status(d, s, x, z, y, dx, dy, it)
+    done = status != 0
+    rho, F = _adapt_rho(d, s, st, z, prods, it, done)
+    new = _State(x, z, y, dx, dy, rho, F, it, status, done, prim, dual)
+    return jax.tree.map(lambda a, b: jnp.where(st.done, a, b), st, new)
+
+
+def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
+    """Solve one problem (no batch axes); traced under jit / vmap: sanitise, scale (Ruiz
+    equilibration and cost scaling), blocks of ADMM steps until every status is final,
+    unscale (x = D x̄, y = E ȳ / c, z = E⁻¹ z̄)."""
+    P, q, A, l, u, x0, y0, valid, l_inf, u_inf = _sanitise(P, q, A, l, u, x0, y0, warm)
+    Ps, qs, As, D, E, c = _ruiz(P, q, A, s.scaling)
+    d = _Scaled(Ps, qs, As, E * l, E * u, l_inf, u_inf, D, E, c)
+    st = _initial_state(d, s, x0, y0, valid, warm)
+    st = lax.while_loop(lambda st: ~st.done, lambda st: _block(d, s, st), st)
+    nan = jnp.asarray(jnp.nan, q.dtype)
+    x = jnp.where(valid, d.D * st.x, nan)
+    y = jnp.where(valid, d.E * st.y / d.c, nan)
+    z = jnp.where(valid, st.z / d.E, nan)
     return Solution(x, y, z, st.status, st.it, st.prim_res, st.dual_res)
 
 

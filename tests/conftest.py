@@ -1,7 +1,15 @@
-"""Shared test fixtures."""
+"""Shared test fixtures, and the suite's one numeric setting: JAX runs in float64.
+
+The numerical tests compare against closed forms, OSQP, C MuJoCo and finite differences at
+tolerances only float64 reaches, so x64 is switched on here, once, before any test module is
+imported (a test module that switched it itself would change the setting for every module
+collected after it).  A test of float32 behaviour runs its program in a subprocess or casts
+explicitly; ``float64`` below keeps tests that need x64 correct when run alone."""
 
 import jax
 import pytest
+
+jax.config.update("jax_enable_x64", True)
 
 
 @pytest.fixture

@@ -4,8 +4,6 @@ import functools
 
 import jax
 
-jax.config.update("jax_enable_x64", True)
-
 import jax.numpy as jnp
 import mujoco
 import numpy as np

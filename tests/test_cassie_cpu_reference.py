@@ -29,8 +29,6 @@ Tolerances:
 
 import jax
 
-jax.config.update("jax_enable_x64", True)
-
 import sys
 from pathlib import Path
 

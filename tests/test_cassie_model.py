@@ -6,15 +6,13 @@ mj_jacSite, mj_jacSubtreeCom, the connect rows of efc_J) and central finite diff
 
 import jax
 
-jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
 
-import jax.numpy as jnp  # noqa: E402
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-from mujoco import mjx  # noqa: E402
-
-from hlip_jax.plants.cassie import model as cm  # noqa: E402
+from hlip_jax.plants.cassie import model as cm
 
 
 @pytest.fixture(scope="module")

@@ -7,15 +7,13 @@ fixed-point equations, or the figures quoted in DESIGN.md.
 
 import jax
 
-jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.linalg
+from scipy.integrate import solve_ivp
 
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-import scipy.linalg  # noqa: E402
-from scipy.integrate import solve_ivp  # noqa: E402
-
-from hlip_jax import hlip  # noqa: E402
+from hlip_jax import hlip
 
 G = hlip.GRAVITY
 CASES = [  # (z0 [m], t_ssp [s], t_dsp [s])

@@ -2,8 +2,6 @@
 
 import jax
 
-jax.config.update("jax_enable_x64", True)
-
 import itertools
 
 import jax.numpy as jnp

@@ -4,10 +4,6 @@ The plant adds uniform noise δp ∈ [−a, a] (on p, and so on c) and δv ∈ [
 step, so the true W of w = x_{k+1} − A x_k − B u_k is the box [±a, ±a, ±b] per plane.
 """
 
-import jax
-
-jax.config.update("jax_enable_x64", True)
-
 import numpy as np
 import pytest
 

@@ -1,8 +1,5 @@
 """Condensed MPC against an independently built non-condensed QP (states as variables) solved by OSQP."""
 
-import jax
-
-jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp
 import numpy as np

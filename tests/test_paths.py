@@ -9,13 +9,11 @@ import math
 
 import jax
 
-jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp
+import numpy as np
+import pytest
 
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
-from hlip_jax import paths as P  # noqa: E402
+from hlip_jax import paths as P
 
 # Fine tables for the derivative checks: dt = 2 ms.
 FINE = dict(n_samples=25_001, t_final=50.0)  # every default shape fits in 50 s

@@ -10,15 +10,13 @@ near machine precision, so the tolerances below are set by our own stopping tole
 
 import jax
 
-jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp
+import numpy as np
+import osqp
+import pytest
+import scipy.sparse as sp
 
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-import osqp  # noqa: E402
-import pytest  # noqa: E402
-import scipy.sparse as sp  # noqa: E402
-
-from hlip_jax import qp  # noqa: E402
+from hlip_jax import qp
 
 TIGHT64 = qp.Settings(eps_abs=1e-7, eps_rel=1e-7, max_iter=20000)
 LOOSE32 = qp.Settings(eps_abs=1e-4, eps_rel=1e-4, max_iter=20000)

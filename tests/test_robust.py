@@ -10,9 +10,6 @@ guarantee is exact: no keep-out violation at any impact with mpc.robust, where t
 does violate it on the same seeds.
 """
 
-import jax
-
-jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp
 import numpy as np

@@ -3,10 +3,6 @@
 All scenarios run in one compiled, vmapped call (a module fixture), as a sweep would.
 """
 
-import jax
-
-jax.config.update("jax_enable_x64", True)
-
 import numpy as np
 import pytest
 

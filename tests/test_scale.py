@@ -11,9 +11,6 @@ import subprocess
 import sys
 import textwrap
 
-import jax
-
-jax.config.update("jax_enable_x64", True)
 
 import pytest
 

@@ -104,25 +104,7 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
         k = np.asarray(jax.vmap(hlip.deadbeat_gain)(z0, t_ssp, t_dsp))              # (B, 2)
         gain = np.repeat(np.concatenate([np.zeros((B, 1)), k], 1)[:, None], 2, axis=1)
     gain = np.broadcast_to(np.asarray(gain, float), (B, 2, 3))
-    if gait is None or not isinstance(gait, (list, tuple)):
-        gaits = [plant.make_gait(gait)] * B
-    else:
-        if len(gait) != B:
-            raise ValueError(f"gait: expected one CassieConfig per robot ({B}), got {len(gait)}")
-        gaits = [plant.make_gait(g) for g in gait]
-    n_push = 1 if pushes is None else len(pushes)
-    params = plant.Params(push_start=np.full((B, n_push), -1.0), push_end=np.full((B, n_push), -1.0),
-                    push_force=np.zeros((B, n_push, 2)),
-                    ticks=np.zeros((B, plant.tick_budget(float(T.max())))),
-                    gait=jax.tree.map(lambda *a: np.stack(a), *gaits),
-                    noise_v=np.broadcast_to(np.asarray(noise_v, float), (B,)).copy(),
-                    step_error=np.broadcast_to(np.asarray(step_error, float), (B,)).copy(),
-                    real=None)
-    if pushes is not None:
-        for i, (t0, t1, fx, fy) in enumerate(pushes):
-            params.push_start[:, i], params.push_end[:, i] = t0, t1
-            params.push_force[:, i] = np.stack(np.broadcast_arrays(fx, fy), -1)
-    params = jax.tree.map(jnp.asarray, params)
+    params = _walk_params(B, T, gait, pushes, noise_v, step_error)
     x0 = jnp.zeros((2, 3))
     one = plant.init(None, x0, None, None, jax.random.PRNGKey(0))       # every robot starts alike
     state = jax.tree.map(lambda a: jnp.broadcast_to(a, (B,) + a.shape), one)
@@ -167,14 +149,42 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
         R = jax.vmap(lambda q: model.quat_to_mat(q / jnp.linalg.norm(q)))(state.d.qpos[:, 3:7])
         log["pelvis_yaw"].append(np.arctan2(np.asarray(R[:, 1, 0]), np.asarray(R[:, 0, 0])))
         log["time"].append(np.asarray(state.time))
+    return _walk_log(log, A, Bm), ticks
+
+
+def _walk_params(B: int, T, gait, pushes, noise_v, step_error) -> "plant.Params":
+    """The plant's params of :func:`walk_orbits`'s B robots (an ideal batch: no realism)."""
+    if gait is None or not isinstance(gait, (list, tuple)):
+        gaits = [plant.make_gait(gait)] * B
+    else:
+        if len(gait) != B:
+            raise ValueError(f"gait: expected one CassieConfig per robot ({B}), got {len(gait)}")
+        gaits = [plant.make_gait(g) for g in gait]
+    n_push = 1 if pushes is None else len(pushes)
+    params = plant.Params(push_start=np.full((B, n_push), -1.0), push_end=np.full((B, n_push), -1.0),
+                          push_force=np.zeros((B, n_push, 2)),
+                          ticks=np.zeros((B, plant.tick_budget(float(T.max())))),
+                          gait=jax.tree.map(lambda *a: np.stack(a), *gaits),
+                          noise_v=np.broadcast_to(np.asarray(noise_v, float), (B,)).copy(),
+                          step_error=np.broadcast_to(np.asarray(step_error, float), (B,)).copy(),
+                          real=None)
+    if pushes is not None:
+        for i, (t0, t1, fx, fy) in enumerate(pushes):
+            params.push_start[:, i], params.push_end[:, i] = t0, t1
+            params.push_force[:, i] = np.stack(np.broadcast_arrays(fx, fy), -1)
+    return jax.tree.map(jnp.asarray, params)
+
+
+def _walk_log(log: dict, A, Bm) -> "WalkLog":
+    """Per-step lists (axis 1 after stacking) → :class:`WalkLog` with w, e and the sticky
+    ``failed`` flag."""
     out = {k: np.stack(v, axis=1) for k, v in log.items()}
     xr, ur = out["x_robot"], out["u_robot"]
-    w = (xr[:, 2:] - np.einsum("bij,bkpj->bkpi", A, xr[:, 1:-1])
-         - ur[:, 1:-1, :, None] * Bm[:, None, None])
-    out["w"] = w
+    out["w"] = (xr[:, 2:] - np.einsum("bij,bkpj->bkpi", A, xr[:, 1:-1])
+                - ur[:, 1:-1, :, None] * Bm[:, None, None])
     out["e"] = xr - out["x_hlip"]
     out["failed"] = np.cumsum(out["failed"], axis=1) > 0
-    return WalkLog(**out), ticks
+    return WalkLog(**out)
 
 
 def walk_speeds(log: WalkLog, i: int, lo: int, hi: int, T: float):
