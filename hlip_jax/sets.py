@@ -103,7 +103,9 @@ class Zonotope(NamedTuple):
     def contains(self, points, tol: float = 1e-9):
         """Bool per point through the exact facets; ``tol`` relative to the set's size."""
         z = _as_jnp(self if self.normals is not None else zonotope_hrep(self))
-        x = _as_jnp(points)
+        x = points if isinstance(points, jax.Array) else np.asarray(points)
+        if any(isinstance(a, jax.core.Tracer) for a in jax.tree_util.tree_leaves(z)):
+            x = jnp.asarray(x)                 # a traced set: the points join the trace
         if (z.prefix_offsets is not None and not isinstance(x, jax.core.Tracer)
                 and not isinstance(z.normals, jax.core.Tracer) and x.size >= 8192 * x.shape[-1]):
             return _zono_contains_two_pass(z, x, tol)

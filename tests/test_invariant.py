@@ -516,3 +516,15 @@ def test_analyse_in_the_heading_frame_pools_a_walking_bias():
         np.testing.assert_allclose(np.asarray(W.hi), Bm.max(axis=0), atol=1e-12)
         assert hd.planes[p].coverage.outer == 1.0 and wd.planes[p].coverage.outer == 1.0
     assert hd.planes[0].volume * 2.0 < wd.planes[0].volume
+
+
+def test_membership_of_traced_sets_and_host_points():
+    """Host points (numpy or a list) against a set inside jit (its leaves traced) and outside
+    it: the same answer, exactly (points at ±0.5 and ±2 from a unit box's facets)."""
+    from hlip_jax import sets
+    z = sets.zonotope(np.zeros(2), np.eye(2))
+    P = np.array([[0.5, 0.5], [2.0, 0.0], [-0.5, 0.9]])
+    want = [True, False, True]
+    assert np.asarray(jax.jit(lambda z: z.contains(P))(z)).tolist() == want
+    assert np.asarray(z.contains(P)).tolist() == want
+    assert np.asarray(z.contains(P.tolist())).tolist() == want

@@ -33,6 +33,9 @@ from hlip_jax.plants.base import StepCommand, StepResult, push_table
 from hlip_jax.plants.cassie import clfqp, control, model, outputs, realism, tick
 
 cassie = tick.cassie
+#: ``fold_in`` index of the sensing noise's PRNG stream: far from the split indices (0, 1, 2)
+#: of the step noise, which under JAX's partitionable threefry equal fold_in indices
+SENSING_STREAM = 0x5E7501
 
 
 class Gait(NamedTuple):
@@ -166,7 +169,7 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     terms = model.robot_terms(c, d)
     feet = outputs.foot_centres(terms)
     real = None if params is None or params.real is None else \
-        realism.init_state(c.index.nu, terms.com_vel, jax.random.fold_in(key, 1), dt)
+        realism.init_state(c.index.nu, terms.com_vel, jax.random.fold_in(key, SENSING_STREAM), dt)
     return State(d=d, warm=control.warm_zeros(c, dt), time=jnp.zeros((), dt),
                  yaw=outputs.wrap(th), land_xy=feet[0, :2], key=key, real=real)
 
@@ -220,8 +223,9 @@ def _prepare(params: Params, state: State, cmd: StepCommand):
 
 
 def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState, key, du_err):
-    """(plant state at SSP⁻_{k+1}, StepResult) from the last tick state of the step."""
-    terms = model.robot_terms(cassie(), s.d, ctx.mx)
+    """(plant state at SSP⁻_{k+1}, StepResult) from the last tick state of the step (the
+    true state, on the physics' own model: a pelvis COM error moves the COM it reports)."""
+    terms = model.robot_terms(cassie(), s.d, ctx.mx_plant)
     x_r, st_xy = tick.robot_state(terms, ctx.new_st)
     sw_xy = jnp.where(ctx.sw == 0, terms.ankle[0, :2], terms.ankle[1, :2])
     failed = s.fell | ~jnp.all(jnp.isfinite(x_r))

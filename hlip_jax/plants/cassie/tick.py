@@ -118,7 +118,9 @@ class Contacts(NamedTuple):
 
 
 class TickLog(NamedTuple):
-    """Per-tick record (leading axis: ticks of the step)."""
+    """Per-tick record (leading axis: ticks of the step).  ``com``, ``feet``, ``y_err`` and
+    ``grf`` are what the controller computes from its measurement (the truth on an ideal
+    robot); ``pelvis``, ``spring`` and ``tau`` are the simulated robot's."""
     com: jax.Array           # (3,) COM [m]
     feet: jax.Array          # (2, 3) foot centres [m]
     tau: jax.Array           # (10,) torques the motors apply [N m, motor side]
