@@ -107,7 +107,8 @@ def figure(levels, path) -> None:
             if plane in e and np.isfinite(e[plane][0]):
                 ax[1].plot(e[plane][0], yi + 0.12 * (p - 0.5), "os"[p], color=f"C{p + 1}",
                            label=plane if yi == y[0] else None)
-    ax[0].set_yticks(y, names, fontsize=7)
+    short = [n if len(n) <= 36 else n.split(",")[0] + ", …" for n in names]
+    ax[0].set_yticks(y, short, fontsize=7)
     ax[0].set_xlabel("walked the scenario (95 % Clopper–Pearson)")
     ax[0].set_xlim(-0.02, 1.02)
     ax[1].set_xscale("log")
