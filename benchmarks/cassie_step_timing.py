@@ -18,7 +18,9 @@ import argparse
 
 import numpy as np
 
-from hlip_jax.plants.cassie import gaits, orbits, outputs
+from hlip_jax.plants.cassie import gaits, outputs
+
+import cassie_orbits as orbits  # benchmarks/ is on the path when this script runs
 
 
 def main() -> None:

@@ -53,6 +53,7 @@ def main(argv=None):
     from hlip_jax import hlip
     from hlip_jax.plants.cassie import plant
 
+    import cassie_orbits as orbits  # benchmarks/ is on the path when this script runs
     dflt = orbits.WALK_DEFAULTS
     pick = lambda v, k: dflt[k] if v is None else v                     # noqa: E731
     z0, ts, td = pick(args.z0, "z0"), pick(args.t_ssp, "t_ssp"), pick(args.t_dsp, "t_dsp")

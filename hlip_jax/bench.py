@@ -24,14 +24,17 @@ HEADER = ("| batch | devices | steps | compile + first [s] | run [s] | robot-s /
 
 def configs(n: int, duration: float, qp_max_iter: int | None = None):
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
-    of docs/cassie_gait.md (H-LIP timing and 3-state LQR stepping gain: orbits.WALK_DEFAULTS)."""
+    of docs/cassie_gait.md (the default gait preset's H-LIP timing and 3-state LQR stepping
+    gain)."""
     from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
-    from hlip_jax.plants.cassie.orbits import WALK_DEFAULTS as W
+    from hlip_jax.plants.cassie import gaits
+    W = gaits.preset(gaits.DEFAULT)
     cassie = CassieConfig() if qp_max_iter is None else CassieConfig(qp_max_iter=qp_max_iter)
     return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
-                           hlip=HLIPConfig(z0=W["z0"], t_ssp=W["t_ssp"], t_dsp=W["t_dsp"]),
-                           gain=GainConfig(type="lqr", with_position=True, q_c=W["q_c"], q_p=1.0,
-                                           q_v=W["q_v"], r=W["r"]),
+                           hlip=HLIPConfig(z0=W["hlip.z0"], t_ssp=W["hlip.t_ssp"],
+                                           t_dsp=W["hlip.t_dsp"]),
+                           gain=GainConfig(type="lqr", with_position=True, q_c=W["gain.q_c"],
+                                           q_p=1.0, q_v=W["gain.q_v"], r=W["gain.r"]),
                            path=PathConfig(shape="line", params=dict(
                                peak_speed=max(SPEEDS[i % len(SPEEDS)], 0.01), length=5.0)))
             for i in range(n)]

@@ -3,7 +3,6 @@
 import functools
 
 import jax
-
 import jax.numpy as jnp
 import mujoco
 import numpy as np

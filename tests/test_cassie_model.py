@@ -5,7 +5,6 @@ mj_jacSite, mj_jacSubtreeCom, the connect rows of efc_J) and central finite diff
 """
 
 import jax
-
 import jax.numpy as jnp
 import mujoco
 import numpy as np

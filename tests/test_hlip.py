@@ -6,7 +6,6 @@ fixed-point equations, or the figures quoted in DESIGN.md.
 """
 
 import jax
-
 import jax.numpy as jnp
 import numpy as np
 import pytest

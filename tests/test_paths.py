@@ -8,7 +8,6 @@ out by hand, and numpy's np.interp for the interpolation.
 import math
 
 import jax
-
 import jax.numpy as jnp
 import numpy as np
 import pytest

@@ -9,7 +9,6 @@ near machine precision, so the tolerances below are set by our own stopping tole
 """
 
 import jax
-
 import jax.numpy as jnp
 import numpy as np
 import osqp
