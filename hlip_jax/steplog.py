@@ -6,12 +6,14 @@ Axes: S scenarios, K logged steps (k = 0 … K−1), planes (sagittal world x, l
 and the H-LIP state [c, p, v] of one plane: c the global COM position [m], p the COM relative
 to the stance foot [m], v the COM velocity [m/s].
 
-:class:`Log` fields, ``name: meaning [unit] (shape)``:
+:class:`Log` fields, ``name: meaning [unit] (shape) dtype`` (dtype float64 where none is
+given); :func:`zeros` reads the shapes and dtypes from this list, so a field is defined here
+and in :class:`Log` and nowhere else:
 
     t: the planner's clock at SSP⁻_k, k T with T = T_SSP + T_DSP [s] (S, K)
     t_plant: the plant's own clock at SSP⁻_k (a Cassie step ends at its detected touchdown,
       so its steps need not last T) [s] (S, K)
-    stance: stance foot of the step that starts at SSP⁻_k, 0 left 1 right (S, K)
+    stance: stance foot of the step that starts at SSP⁻_k, 0 left 1 right (S, K) int32
     x_hlip: the H-LIP nominal's state x_H,k per plane [m, m, m/s] (S, K, 2, 3)
     x_robot: the robot's state x_R,k per plane [m, m, m/s] (S, K, 2, 3)
     e: tracking error x_R,k − x_H,k [m, m, m/s] (S, K, 2, 3)
@@ -22,14 +24,14 @@ to the stance foot [m], v the COM velocity [m/s].
     ref_pos: the path's point at t_k [m] (S, K, 2)
     ref_vel: the path's velocity at t_k [m/s] (S, K, 2)
     ref_heading: the path's heading θ_d(t_k) [rad] (S, K)
-    qp_status: the MPC QP's status code (:mod:`hlip_jax.qp`) (S, K)
-    qp_iter: the MPC QP's ADMM iterations (S, K)
+    qp_status: the MPC QP's status code (:mod:`hlip_jax.qp`) (S, K) int32
+    qp_iter: the MPC QP's ADMM iterations (S, K) int32
     obstacle_slack: largest keep-out slack of the MPC plan [m] (S, K)
     clearance: smallest COM distance to an obstacle's keep-out disc (inf without obstacles)
       [m] (S, K)
-    valid: step k was simulated and the robot still walked (S, K)
-    status: the scenario's outcome, one of :data:`STATUS_NAMES` (S,)
-    fail_step: first step at which the robot fell, −1 if it did not (S,)
+    valid: step k was simulated and the robot still walked (S, K) bool
+    status: the scenario's outcome, one of :data:`STATUS_NAMES` (S,) int32
+    fail_step: first step at which the robot fell, −1 if it did not (S,) int32
     A: the planner's 3-state S2S matrix per scenario (S, 3, 3)
     B: the planner's S2S input vector (S, 3)
     K_gain: the stepping gain per plane on [c, p, v] (S, 2, 3)
@@ -37,6 +39,7 @@ to the stance foot [m], v the COM velocity [m/s].
 
 from __future__ import annotations
 
+import re
 from typing import NamedTuple
 
 import numpy as np
@@ -75,8 +78,33 @@ class Log(NamedTuple):
 
 #: every field, in order
 FIELDS = Log._fields
+
+
+def _documented_layout() -> dict[str, tuple[tuple, str]]:
+    """{field: (shape with "S" and "K" for the scenario and step axes, dtype)} parsed from the
+    module doc's ``name: ... (shape) dtype`` entries (an entry may run over several lines)."""
+    entries = re.split(r"\n    (?=\w+: )", __doc__.split("``name: meaning", 1)[1])[1:]
+    out = {}
+    for e in entries:
+        name = e.split(":", 1)[0]
+        m = re.search(r"\(([SK0-9, ]+)\)\s*(\w+)?\s*$", e.split("\n\"\"\"")[0].strip())
+        dims = tuple(d if d in "SK" else int(d) for d in m.group(1).replace(" ", "").split(",") if d)
+        out[name] = (dims, m.group(2) or "float64")
+    return out
+
+
+#: field → (documented shape, dtype), from the module doc (:func:`_documented_layout`)
+LAYOUT = _documented_layout()
 #: the fields with a step axis (axis 1), padded when chunks of different K are joined
-STEP_FIELDS = FIELDS[:FIELDS.index("valid") + 1]
+STEP_FIELDS = tuple(f for f in FIELDS if LAYOUT[f][0][1:2] == ("K",))
+
+
+def zeros(S: int, K: int) -> dict[str, np.ndarray]:
+    """A zero-filled log of S scenarios and K steps, one array per field with its documented
+    shape and dtype (the tests' fake closed loops start from it)."""
+    size = {"S": S, "K": K}
+    return {f: np.zeros(tuple(size.get(d, d) for d in LAYOUT[f][0]), LAYOUT[f][1])
+            for f in FIELDS}
 
 
 def alive(valid: np.ndarray) -> np.ndarray:

@@ -16,6 +16,18 @@ def test_fields_and_step_fields():
         assert f"\n    {f}: " in steplog.__doc__, f
 
 
+def test_zeros_follow_the_documented_layout():
+    """The doc's "(shape) dtype" of every field, and nothing else, builds the zero log."""
+    assert set(steplog.LAYOUT) == set(steplog.FIELDS)
+    z = steplog.zeros(3, 7)
+    assert set(z) == set(steplog.FIELDS)
+    assert z["x_robot"].shape == (3, 7, 2, 3) and z["x_robot"].dtype == np.float64
+    assert z["u_hlip"].shape == (3, 7, 2) and z["t_plant"].shape == (3, 7)
+    assert z["valid"].dtype == bool and z["stance"].dtype == np.int32
+    assert z["status"].shape == (3,) and z["A"].shape == (3, 3, 3) and z["K_gain"].shape == (3, 2, 3)
+    assert steplog.STEP_FIELDS == steplog.FIELDS[:steplog.FIELDS.index("valid") + 1]
+
+
 def test_alive_stops_at_the_first_invalid_step():
     v = np.array([[1, 1, 0, 1], [1, 1, 1, 1], [0, 1, 1, 1]], bool)
     np.testing.assert_array_equal(steplog.alive(v), [[1, 1, 0, 0], [1, 1, 1, 1], [0, 0, 0, 0]])

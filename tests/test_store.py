@@ -57,11 +57,8 @@ def fake_simulate(configs, chunk=None, calls=None):
     S = len(configs)
     Ks = [math.ceil(c.duration / (c.hlip.t_ssp + c.hlip.t_dsp)) for c in configs]
     K = max(Ks)
-    z = lambda *sh, dt=np.float64: np.zeros((S, K) + sh, dt)  # noqa: E731
-    log = {k: z() for k in ("t", "t_plant", "ref_heading", "obstacle_slack", "clearance")}
-    log.update(stance=z(dt=np.int32), qp_status=np.ones((S, K), np.int32), qp_iter=z(dt=np.int32),
-               x_hlip=z(2, 3), x_robot=z(2, 3), e=z(2, 3), w=z(2, 3), u_hlip=z(2),
-               u_robot=z(2), ref_pos=z(2), ref_vel=z(2), valid=z(dt=bool))
+    log = steplog.zeros(S, K)          # every field, with its documented shape and dtype
+    log["qp_status"][:] = 1
     status = np.zeros(S, np.int32)
     fail = -np.ones(S, np.int32)
     A_all, B_all, K_all = np.zeros((S, 3, 3)), np.zeros((S, 3)), np.zeros((S, 2, 3))
@@ -101,7 +98,8 @@ def fake_simulate(configs, chunk=None, calls=None):
         if c.swept.get("gain.type") == "lqr" and c.swept.get("mpc.alpha") == 0.1:
             status[s], fail[s] = 1, 3
             log["valid"][s, 3:] = False
-    return FakeLog(**log, status=status, fail_step=fail, A=A_all, B=B_all, K_gain=K_all)
+    log.update(status=status, fail_step=fail, A=A_all, B=B_all, K_gain=K_all)
+    return FakeLog(**log)
 
 
 def _tiny(**kw):
