@@ -14,6 +14,7 @@ records import their modules on first use, so that naming or validating a plant 
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from typing import Callable, NamedTuple, Optional
 
@@ -61,16 +62,13 @@ def check(cfg) -> Optional[str]:
     field the plant cannot take.  Light: no plant module is imported."""
     d = cfg.disturbance
     if cfg.plant == "hlip":
-        from hlip_jax.config import RealismConfig
-        import dataclasses
-        r0 = RealismConfig()
+        r0 = type(cfg.realism)()           # the defaults (no import of the config layer)
         for f in dataclasses.fields(r0):
             if getattr(cfg.realism, f.name) != getattr(r0, f.name):
                 return (f"realism.{f.name}: {getattr(cfg.realism, f.name)!r} models the Cassie robot; "
                         f"allowed with plant = 'hlip': {getattr(r0, f.name)!r}")
     if cfg.plant == "cassie":
-        from hlip_jax.config import DisturbanceConfig
-        d0 = DisturbanceConfig()
+        d0 = type(d)()
         for f in HLIP_ONLY_DISTURBANCES:
             if getattr(d, f) != getattr(d0, f):
                 return (f"disturbance.{f}: {getattr(d, f):g} acts on the H-LIP plant only; "
