@@ -61,11 +61,11 @@ class Box(NamedTuple):
 
     def support(self, directions):
         """h(d) = max_{x∈Box} dᵀx = dᵀc + |d|ᵀr (c centre, r half-widths); d shape (..., n)."""
-        return _box_support(_as_jnp(self), jnp.asarray(directions))
+        return _box_support(_for_kernels(self), jnp.asarray(directions))
 
     def contains(self, points, tol: float = 1e-9):
         """Bool per point (shape (...,) for points (..., n)); ``tol`` relative to the widths."""
-        return _box_contains(_as_jnp(self), jnp.asarray(points), tol)
+        return _box_contains(_for_kernels(self), jnp.asarray(points), tol)
 
     def volume(self):
         """Π (hi − lo)."""
@@ -98,11 +98,11 @@ class Zonotope(NamedTuple):
 
     def support(self, directions):
         """h(d) = dᵀc + Σ_k |g_kᵀ d|."""
-        return _zono_support(_as_jnp(self), jnp.asarray(directions))
+        return _zono_support(_for_kernels(self), jnp.asarray(directions))
 
     def contains(self, points, tol: float = 1e-9):
         """Bool per point through the exact facets; ``tol`` relative to the set's size."""
-        z = _as_jnp(self if self.normals is not None else zonotope_hrep(self))
+        z = _for_kernels(self if self.normals is not None else zonotope_hrep(self))
         x = points if isinstance(points, jax.Array) else np.asarray(points)
         if any(isinstance(a, jax.core.Tracer) for a in jax.tree_util.tree_leaves(z)):
             x = jnp.asarray(x)                 # a traced set: the points join the trace
@@ -210,7 +210,7 @@ class MRPI(NamedTuple):
         return self.outer.volume()
 
 
-def _as_jnp(t):
+def _for_kernels(t):
     """Leaves ready for the jitted kernels: JAX arrays (and tracers) as they are, anything else
     as numpy.  A host array goes to the kernel as an argument; converting it with
     ``jnp.asarray`` first would run an eager op that compiles once per new shape, and set

@@ -87,7 +87,7 @@ def _documented_layout() -> dict[str, tuple[tuple, str]]:
     out = {}
     for e in entries:
         name = e.split(":", 1)[0]
-        m = re.search(r"\(([SK0-9, ]+)\)\s*(\w+)?\s*$", e.split("\n\"\"\"")[0].strip())
+        m = re.search(r"\(([SK0-9, ]+)\)\s*(\w+)?\s*$", e.strip())
         dims = tuple(d if d in "SK" else int(d) for d in m.group(1).replace(" ", "").split(",") if d)
         out[name] = (dims, m.group(2) or "float64")
     return out

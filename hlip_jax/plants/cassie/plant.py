@@ -127,15 +127,14 @@ def make_params(cfg, n_push: int, t_step: float = 0.0, non_ideal: bool = False) 
     that every chunk has one shape).  ``non_ideal``: the batch has a robot that departs from
     the ideal plant (``cfg.realism``), so every robot carries realism data; otherwise none
     does, and a scenario that departs is an error."""
-    real = realism.make(cfg.realism)
-    if not (non_ideal or realism.is_ideal(real)):
+    if not non_ideal and cfg.realism != type(cfg.realism)():
         raise ValueError(f"realism: scenario {cfg.name!r} departs from the ideal plant; build "
                          "it with non_ideal=True (rollout.shapes_of sets it for the batch)")
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
     ticks = np.zeros(tick_budget(max(t_step, step_span(cfg))))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,
                   gait=make_gait(cfg.cassie), noise_v=np.float64(cfg.disturbance.noise_v),
-                  step_error=np.float64(cfg.disturbance.step_error), real=real if non_ideal else None)
+                  step_error=np.float64(cfg.disturbance.step_error), real=realism.make(cfg.realism) if non_ideal else None)
 
 
 def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
@@ -155,7 +154,7 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     com = dm.subtree_com[c.index.pelvis_body].copy()
     d = mjx.put_data(m, dm, impl=c.mjx_model.impl)
     dt = x0.dtype
-    d = jax.tree.map(lambda a: a.astype(dt) if jnp.issubdtype(a.dtype, jnp.floating) else a, d)
+    d = _floats_as(d, dt)
     # root pose: position rotated about the COM, orientation q ← q_z(θ0) ⊗ q (MuJoCo w, x, y, z)
     th = jnp.asarray(heading0, dt)
     ch, sh = jnp.cos(th), jnp.sin(th)
@@ -174,6 +173,12 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
                  yaw=outputs.wrap(th), land_xy=feet[0, :2], key=key, real=real)
 
 
+def _floats_as(tree, dt):
+    """``tree`` with its floating leaves in dtype ``dt`` (integer and bool leaves as they are)."""
+    return jax.tree.map(lambda a: jnp.asarray(a, dt) if jnp.issubdtype(jnp.asarray(a).dtype, jnp.floating)
+                        else a, tree)
+
+
 def _step_noise(params: Params, state: State, t_step, dt):
     """(next key, pelvis force (2,) [N], landing-target error (2,) [m]) of this step."""
     key, k_v, k_u = jax.random.split(state.key, 3)
@@ -186,8 +191,7 @@ def _context(params: Params, state: State, cmd: StepCommand, f_noise, du_err) ->
     dt = state.d.qpos.dtype
     gait = jax.tree.map(lambda a: jnp.asarray(a, dt), params.gait)
     ctrl = cassie().ctrl_range
-    real = jax.tree.map(lambda a: jnp.asarray(a, dt) if jnp.issubdtype(jnp.asarray(a).dtype, jnp.floating)
-                        else a, params.real)
+    real = _floats_as(params.real, dt)
     mx = tick.scenario_model(gait.damping)
     mx_plant = mx if real is None else realism.plant_model(cassie(), real, mx)
     return tick.Context(
@@ -217,7 +221,7 @@ def _first_tick(ctx: tick.Context, state: State) -> tick.TickState:
 def _prepare(params: Params, state: State, cmd: StepCommand):
     """(cmd in the state's dtype, next PRNG key, step-noise landing error, tick context)."""
     dt = state.d.qpos.dtype
-    cmd = jax.tree.map(lambda a: a.astype(dt) if jnp.issubdtype(a.dtype, jnp.floating) else a, cmd)
+    cmd = _floats_as(cmd, dt)
     key, f_noise, du_err = _step_noise(params, state, cmd.t_ssp + cmd.t_dsp, dt)
     return cmd, key, du_err, _context(params, state, cmd, f_noise, du_err)
 

@@ -1,10 +1,10 @@
 """How the simulated Cassie departs from the ideal plant: motors, latency, sensing, touchdown
 detection, model errors and ground slope — each a per-scenario number, so a sweep over any of
-them shares one compiled program, and the defaults (:data:`IDEAL`) leave today's ideal plant
-exactly as it was: a batch of ideal robots carries no realism data and compiles none of this
+them shares one compiled program, and the defaults (those of
+:class:`hlip_jax.config.RealismConfig`) leave today's ideal plant exactly as it was: a batch of
+ideal robots carries no realism data and compiles none of this
 (:mod:`hlip_jax.plants.cassie.tick`), and in a batch that does, an ideal robot's stages select
-their ideal branch (no arithmetic touches its torques or measurements).  :func:`ideal` is that
-default.
+their ideal branch (no arithmetic touches its torques or measurements).
 
 Per 1 kHz control tick i (the stages the tick of :mod:`hlip_jax.plants.cassie.tick` calls):
 
@@ -59,7 +59,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from hlip_jax.plants.cassie import model
+from hlip_jax.plants.cassie import dynamics, model
 
 #: longest latency the per-scenario queue holds [ticks]; the config's range stops here
 MAX_LATENCY = 10
@@ -121,24 +121,6 @@ def make(cfg) -> Realism:
         slope=rad(np.array([cfg.slope_x, cfg.slope_y], float)))
 
 
-def ideal() -> Realism:
-    """The ideal plant's :class:`Realism` (numpy; the config's defaults, for callers without a
-    config)."""
-    f, z2 = np.float64, np.zeros(2)
-    return Realism(motor_curve=np.bool_(False), motor_corner=f(0.5), motor_lag=f(0.0),
-                   latency=np.int32(0), period=np.int32(1), noisy=np.bool_(False),
-                   joint_noise=f(0.0), joint_rate_noise=f(0.0), imu_noise=f(0.0),
-                   imu_rate_noise=f(0.0), imu_bias=z2, velocity_filter=f(0.0),
-                   spring_touchdown=np.bool_(False), spring_threshold=np.deg2rad(f(1.5)),
-                   mass_scale=f(1.0), pelvis_com=z2, stiffness_scale=f(1.0), friction=f(1.0),
-                   slope=z2)
-
-
-def is_ideal(real: Realism) -> bool:
-    """Whether ``real`` (numpy) is the ideal plant's (:func:`ideal`)."""
-    return all(np.array_equal(a, b) for a, b in zip(real, ideal()))
-
-
 def init_state(nu: int, com_vel, key, dtype) -> RealState:
     z = jnp.zeros(nu, dtype)
     return RealState(queue=jnp.zeros((MAX_LATENCY, nu), dtype), held=z, motor=z,
@@ -170,16 +152,14 @@ def layout(c: model.Cassie) -> Layout:
         m = c.mj_model
         hinge = np.flatnonzero(m.jnt_type == mujoco.mjtJoint.mjJNT_HINGE)
         motor_jnt = m.actuator_trnid[:, 0]
-        q = c.index.qpos
-        spring_qpos = (q[0].shin, q[0].heel_spring, q[1].shin, q[1].heel_spring)
-        spring_jnt = np.array([int(np.flatnonzero(m.jnt_qposadr[hinge] == a)[0]) for a in spring_qpos])
-        spring_jnt = hinge[spring_jnt]
+        spring_jnt = m.dof_jntid[np.array(dynamics.spring_dofs(c))]
+        spring_qpos = m.jnt_qposadr[spring_jnt]
         _LAYOUT[key] = Layout(
             hinge_qpos=m.jnt_qposadr[hinge].copy(), hinge_dof=m.jnt_dofadr[hinge].copy(),
             motor_dof=m.jnt_dofadr[motor_jnt].copy(), gear=m.actuator_gear[:, 0].copy(),
             no_load=np.tile(NO_LOAD_RPM, 2) * 2 * np.pi / 60,
-            heel_qpos=np.array([q[0].heel_spring, q[1].heel_spring]), spring_jnt=spring_jnt,
-            spring_qpos=np.array(spring_qpos),
+            heel_qpos=spring_qpos[[1, 3]].copy(), spring_jnt=spring_jnt.copy(),
+            spring_qpos=spring_qpos.copy(),
             contact_geoms=np.flatnonzero((m.geom_contype != 0) | (m.geom_conaffinity != 0)))
     return _LAYOUT[key]
 
