@@ -106,7 +106,7 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
         k = np.asarray(jax.vmap(hlip.deadbeat_gain)(z0, t_ssp, t_dsp))              # (B, 2)
         gain = np.repeat(np.concatenate([np.zeros((B, 1)), k], 1)[:, None], 2, axis=1)
     gain = np.broadcast_to(np.asarray(gain, float), (B, 2, 3))
-    params = _walk_params(B, T, gait, pushes, noise_v, step_error)
+    params = _walk_params(B, t_ssp, t_dsp, gait, pushes, noise_v, step_error)
     x0 = jnp.zeros((2, 3))
     one = plant.init(None, x0, None, None, jax.random.PRNGKey(0))       # every robot starts alike
     state = jax.tree.map(lambda a: jnp.broadcast_to(a, (B,) + a.shape), one)
@@ -154,8 +154,9 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
     return _walk_log(log, A, Bm), ticks
 
 
-def _walk_params(B: int, T, gait, pushes, noise_v, step_error) -> "plant.Params":
-    """The plant's params of :func:`walk_orbits`'s B robots (an ideal batch: no realism)."""
+def _walk_params(B: int, t_ssp, t_dsp, gait, pushes, noise_v, step_error) -> "plant.Params":
+    """The plant's params of :func:`walk_orbits`'s B robots (an ideal batch: no realism); the
+    tick budget holds the longest step, T_DSP + the swing duration (:func:`tick.swing_duration`)."""
     if gait is None or not isinstance(gait, (list, tuple)):
         gaits = [plant.make_gait(gait)] * B
     else:
@@ -165,7 +166,9 @@ def _walk_params(B: int, T, gait, pushes, noise_v, step_error) -> "plant.Params"
     n_push = 1 if pushes is None else len(pushes)
     params = plant.Params(push_start=np.full((B, n_push), -1.0), push_end=np.full((B, n_push), -1.0),
                           push_force=np.zeros((B, n_push, 2)),
-                          ticks=np.zeros((B, plant.tick_budget(float(T.max())))),
+                          ticks=np.zeros((B, plant.tick_budget(max(
+                              float(td + tick.swing_duration(ts, g))
+                              for g, ts, td in zip(gaits, t_ssp, t_dsp))))),
                           gait=jax.tree.map(lambda *a: np.stack(a), *gaits),
                           noise_v=np.broadcast_to(np.asarray(noise_v, float), (B,)).copy(),
                           step_error=np.broadcast_to(np.asarray(step_error, float), (B,)).copy(),

@@ -138,20 +138,20 @@ class CassieConfig:
     :mod:`hlip_jax.plants.cassie.clfqp`."""
     gait: str = spec("paper", doc="gait preset whose values fill the unset gait fields",
                      choices=tuple(gaits.PRESETS))
-    clearance: float = spec(0.0646, 0.0, 0.3, "swing-foot apex height", "m")
-    strike: float = spec(0.0188, 0.0, 0.1, "swing target depth below the ground at the end of SSP", "m")
-    reach: float = spec(0.8661, 0.3, 1.0, "fraction of SSP at which the swing foot reaches its target")
+    clearance: float = spec(0.0647, 0.0, 0.3, "swing-foot apex height", "m")
+    strike: float = spec(0.0174, 0.0, 0.1, "swing target depth below the ground at the end of SSP", "m")
+    reach: float = spec(0.9333, 0.3, 1.0, "fraction of SSP at which the swing foot reaches its target")
     freeze: float = spec(1.0, 0.3, 1.0, "fraction of SSP after which the step target is held")
-    early_contact: float = spec(0.7381, 0.3, 1.0, "fraction of SSP after which a detected swing-foot "
+    early_contact: float = spec(0.8914, 0.3, 1.0, "fraction of SSP after which a detected swing-foot "
                                 "touchdown ends the SSP")
     step_length_max: float = spec(0.6, 0.1, 1.0, "|step length| clip of the swing target, along the heading", "m")
     step_width_min: float = spec(0.1, 0.0, 0.5, "minimum |step width| of the swing target, across the heading", "m")
     step_width_max: float = spec(0.645, 0.1, 1.0, "maximum |step width| of the swing target", "m")
-    omega_pelvis: float = spec(7.0756, 0.5, 50.0, "pelvis orientation output frequency", "rad/s")
-    omega_height: float = spec(3.3003, 0.5, 50.0, "COM height output frequency", "rad/s")
-    omega_swing: float = spec(10.9241, 0.5, 80.0, "swing-foot position and slope output frequency", "rad/s")
-    omega_yaw: float = spec(7.6374, 0.5, 50.0, "swing-foot yaw output frequency", "rad/s")
-    weight_pelvis: float = spec(6.3389, 0.0, 10.0, "QP tracking weight of the pelvis orientation outputs")
+    omega_pelvis: float = spec(6.2518, 0.5, 50.0, "pelvis orientation output frequency", "rad/s")
+    omega_height: float = spec(2.5235, 0.5, 50.0, "COM height output frequency", "rad/s")
+    omega_swing: float = spec(17.0053, 0.5, 80.0, "swing-foot position and slope output frequency", "rad/s")
+    omega_yaw: float = spec(7.5996, 0.5, 50.0, "swing-foot yaw output frequency", "rad/s")
+    weight_pelvis: float = spec(6.3141, 0.0, 10.0, "QP tracking weight of the pelvis orientation outputs")
     shin_damping: float = spec(0.1, 0.0, 100.0, "viscous damping of the simulated shin leaf springs "
                                "(Agility's Cassie model: 0.1)", "N m s/rad")
     heel_damping: float = spec(0.0, 0.0, 100.0, "viscous damping of the simulated heel leaf springs "

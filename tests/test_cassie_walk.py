@@ -2,6 +2,7 @@
 differences), touchdown detection, the config → params path, the gait presets, and a short
 walk of the shipped underactuated controller on MJX (slow)."""
 
+import math
 import sys
 import types
 from pathlib import Path
@@ -169,10 +170,13 @@ def test_make_params_pushes_and_validation():
     p = plant.make_params(cfg, 2)
     np.testing.assert_allclose(p.push_force[0], [0.0, 50.0], atol=1e-12)
     assert p.push_start[0] == 1.0 and abs(p.push_end[0] - 1.2) < 1e-12 and p.push_start[1] < 0
-    # the tick budget holds the latest touchdown, T_DSP + LATE_SSP · T_SSP ≤ LATE_SSP · T,
-    # rounded up to 10 ms
+    # the tick budget holds the latest touchdown, T_DSP + LATE_SSP · T_SSP / s* ≤ LATE_SSP ·
+    # (T_DSP + T_SSP / s*), rounded up to 10 ms; s*, the swing profile's landing fraction, is
+    # checked against its polynomial's root in test_landing_fraction
     assert tick.LATE_SSP == 1.2
-    assert p.ticks.shape == (480,)
+    s_star = float(outputs.landing_fraction(CassieConfig().clearance, CassieConfig().strike))
+    assert 0.5 < s_star < 1.0
+    assert p.ticks.shape == (10 * math.ceil(round(120 * (0.1 + 0.3 / s_star), 6)),)
     assert plant.tick_budget(0.45) == 540 and plant.tick_budget(0.28) == 340
     assert plant.make_params(cfg, 2, t_step=0.5).ticks.shape == (600,)   # sweep-wide budget
     # the gait is data: CassieConfig values reach Params.gait, output frequencies its gains
@@ -305,7 +309,7 @@ def test_short_walk_on_mjx(short_walk):
     the validation sweeps measure the ±10 % targets).  The stance foot's motor is exactly
     passive: every tick whose contact set holds a foot gives that foot's motor zero torque.
     Steps end at detected touchdowns: no step is shorter than T_DSP + early_contact · T_SSP or
-    longer than the tick budget allows (T_DSP + LATE_SSP · T_SSP), to one tick.  The forward
+    longer than the tick budget allows (T_DSP + LATE_SSP times the swing duration), to one tick.  The forward
     robot moves forward at no less than half the H-LIP's predicted speed (a regression bound:
     0.55 of it is measured; the target is :func:`test_forward_speed_follows_the_hlip`)."""
     log, ticks, n, ts, td = (short_walk.log, short_walk.ticks, short_walk.n, short_walk.ts,
@@ -321,7 +325,8 @@ def test_short_walk_on_mjx(short_walk):
             assert np.all(t.tau[:, :, c.index.actuators[f][4]][on] == 0.0)
     dur = np.diff(log.time, axis=1)
     assert np.all(dur >= td + CassieConfig().early_contact * ts - 1e-3), dur
-    assert np.all(dur <= td + tick.LATE_SSP * ts + 1e-3), dur
+    swing = float(tick.swing_duration(ts, plant.make_gait(CassieConfig())))
+    assert np.all(dur <= td + tick.LATE_SSP * swing + 1e-3), dur
     # lateral steps alternate: right foot (u_y < 0) at SSP⁻_1, left (u_y > 0) at SSP⁻_2, ...
     # (world y is across the heading for the robots that do not turn)
     u_y = log.u_robot[[0, 1, 3], :, 1]

@@ -108,15 +108,16 @@ class State(NamedTuple):
 
 
 def step_span(cfg) -> float:
-    """Longest walking step [s] of a scenario before the late-touchdown limit scales it:
-    T_SSP + T_DSP (:func:`tick_budget`)."""
-    return cfg.hlip.t_ssp + cfg.hlip.t_dsp
+    """Longest walking step [s] of a scenario before the late-touchdown limit scales it: T_DSP
+    plus the swing profile's duration T_SSP / s* (:func:`tick.swing_duration`)."""
+    s_star = float(outputs.landing_fraction(cfg.cassie.clearance, cfg.cassie.strike))
+    return cfg.hlip.t_dsp + cfg.hlip.t_ssp / s_star
 
 
 def tick_budget(t_step: float) -> int:
-    """Static 1 kHz ticks per step for steps of T_SSP + T_DSP ≤ ``t_step`` [s]: room for the
-    latest touchdown (T_DSP + LATE_SSP · T_SSP ≤ LATE_SSP · t_step), rounded up to 10 ms (a
-    batch uses the longest step of the sweep)."""
+    """Static 1 kHz ticks per step for steps whose :func:`step_span` is ≤ ``t_step`` [s]: room
+    for the latest touchdown (T_DSP + LATE_SSP · swing duration ≤ LATE_SSP · t_step), rounded
+    up to 10 ms (a batch uses the longest step of the sweep)."""
     return int(10 * math.ceil(round(tick.LATE_SSP * t_step / (10 * control.CONTROL_DT), 6)))
 
 

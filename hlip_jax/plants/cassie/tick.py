@@ -31,9 +31,11 @@ stages are then the identity and are not compiled at all, so the ideal program i
 plain controller.  Phases: DSP for ``T_DSP``; SSP until the swing foot's
 touchdown is *detected* — one of its contact spheres within ``CONTACT_GAP`` of the ground for
 ``TOUCHDOWN_TICKS`` consecutive ticks, no earlier than ``early_contact · T_SSP`` (early
-touchdown) — or until ``LATE_SSP · T_SSP`` (a late foot keeps reaching down; it joins the
-contact set in the next DSP when it touches); then the step is done and the remaining ticks
-of the static budget are idle.
+touchdown) — or until ``LATE_SSP`` times the swing profile's duration (a late foot keeps
+reaching down; it joins the contact set in the next DSP when it touches); then the step is
+done and the remaining ticks of the static budget are idle.  The swing profile is stretched
+(:func:`swing_duration`) so that the foot comes back to the ground at T_SSP: the robot steps
+with the H-LIP's period.
 
 Stepping law (every SSP tick): with x_R = [c, p, v] per world plane, p the COM relative to the
 stance foot's **ankle pivot** (the passive foot's centre of pressure sits under its joint) and
@@ -62,7 +64,7 @@ from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs, rea
 
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
 TOUCHDOWN_TICKS = 3       # consecutive touching ticks that detect a touchdown (bounce filter)
-LATE_SSP = 1.2            # longest SSP waiting for touchdown, in units of T_SSP
+LATE_SSP = 1.2            # longest SSP waiting for touchdown, in units of the swing duration
 DSP, SSP, DONE = 0, 1, 2  # phases of one walking step
 COM_HEIGHT = (0.65, 0.9)  # [m] allowed COM height targets (z0 is clipped to it)
 FALL_HEIGHT = 0.55        # [m] pelvis height below which the robot has fallen
@@ -249,10 +251,20 @@ def stepping_target(ctx: Context, s: TickState, terms) -> jax.Array:
     return jnp.where(live, u, s.u_last)
 
 
+def swing_duration(t_ssp, gait):
+    """Duration [s] of the swing profile (:func:`outputs.swing_height`, :func:`outputs.blend`)
+    that brings the foot back to the ground exactly at the H-LIP's T_SSP: T_SSP / s*, s* the
+    profile's landing fraction (:func:`outputs.landing_fraction`; the profile ends ``strike``
+    below the ground, so it crosses the ground before its end).  The robot's single support
+    then lasts T_SSP, as the H-LIP's does, and the stepping law's SSP⁻ is the real impact."""
+    return t_ssp / outputs.landing_fraction(gait.clearance, gait.strike)
+
+
 def _foot_rows(ctx: Context, s: TickState, terms, u_des):
     """Desired (position (3,), velocity (3,), acceleration (3,), yaw, yaw rate) of the moving
     foot: the swing foot in SSP, the landing foot in DSP (it reaches down until it touches)."""
-    g, t_ssp = ctx.gait, ctx.cmd.t_ssp
+    g = ctx.gait
+    t_ssp = swing_duration(ctx.cmd.t_ssp, g)            # the profile's own duration
     in_dsp = s.phase == DSP
     ts = jnp.where(in_dsp, 0.0, s.t_phase)
     cb, cd, cdd = outputs.with_derivatives(lambda t: outputs.blend(t, t_ssp, g.reach), ts)
@@ -344,7 +356,7 @@ def physics(ctx: Context, s: TickState, tau) -> mjx.Data:
 
 def advance(ctx: Context, s: TickState, cts: Contacts, u_des, res, d_new) -> TickState:
     """Keep the new state while the step runs; DSP → SSP after T_DSP; SSP → done at the
-    detected touchdown or at LATE_SSP · T_SSP."""
+    detected touchdown or at LATE_SSP times the swing duration."""
     dt_c = control.CONTROL_DT
     run = running(s)
     keep = lambda a, b: jnp.where(run, a, b)
@@ -353,7 +365,8 @@ def advance(ctx: Context, s: TickState, cts: Contacts, u_des, res, d_new) -> Tic
     t_phase = s.t_phase + dt_c
     eps = 0.5 * dt_c
     to_ssp = (s.phase == DSP) & (t_phase >= ctx.cmd.t_dsp - eps)
-    to_done = (s.phase == SSP) & (cts.touchdown | (t_phase >= LATE_SSP * ctx.cmd.t_ssp - eps))
+    late = LATE_SSP * swing_duration(ctx.cmd.t_ssp, ctx.gait)
+    to_done = (s.phase == SSP) & (cts.touchdown | (t_phase >= late - eps))
     phase = jnp.where(to_ssp, SSP, jnp.where(to_done, DONE, s.phase))
     return s._replace(
         d=d, warm=warm, phase=jnp.where(run, phase, s.phase).astype(s.phase.dtype),
