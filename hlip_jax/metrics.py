@@ -37,6 +37,11 @@ scenario's valid pre-impact samples k, i.e. the steps before any failure.
   not back by the end).
 * ``qp_failures``: valid steps whose MPC QP status is not 1 (solved).
 * ``min_clearance`` [m]: min obstacle clearance over valid steps (inf without obstacles).
+* ``min_feet_gap``, ``min_leg_gap`` [m]: smallest clearance between the two feet, and between
+  any two lower-leg links of opposite legs, over the valid steps (the step log's ``leg_gap``;
+  inf on the point-foot H-LIP plant).  ``collision_steps``: valid steps whose lower-leg
+  clearance went below zero — the simulated legs pass through each other where a real robot's
+  would collide (:mod:`hlip_jax.plants.cassie.collisions`).
 """
 
 from __future__ import annotations
@@ -52,7 +57,8 @@ SUMMARY_METRICS = (
     "emax_x_c", "emax_x_p", "emax_x_v", "emax_y_c", "emax_y_p", "emax_y_v",
     "cov_x_inner", "cov_x_outer", "cov_x_heldout", "cov_y_inner", "cov_y_outer", "cov_y_heldout",
     "qp_failures", "min_clearance", "e_size_x", "e_size_y", "push_peak_err",
-    "push_recovery_steps", "place_err_rms", "place_err_along",
+    "push_recovery_steps", "place_err_rms", "place_err_along", "min_feet_gap", "min_leg_gap",
+    "collision_steps",
 )
 
 #: COM-to-path distance a pushed robot must return to and stay within [m] (the paper's push
@@ -195,6 +201,10 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
     m["qp_failures"] = int(np.sum(mask & (np.asarray(log["qp_status"][s]) != 1)))
     clr = np.asarray(log["clearance"][s], np.float64)[mask]
     m["min_clearance"] = float(np.min(clr)) if clr.size else math.inf
+    gap = np.asarray(log["leg_gap"][s], np.float64)[mask]              # (n, 2) feet, legs
+    m["min_feet_gap"], m["min_leg_gap"] = ((float(np.min(gap[:, 0])), float(np.min(gap[:, 1])))
+                                           if n else (math.inf, math.inf))
+    m["collision_steps"] = int(np.sum(gap[:, 1] < 0.0))
     if n == 0:
         return m
     c = np.asarray(log["x_robot"][s], np.float64)[mask][:, :, 0]   # (n, 2) COM x, y

@@ -375,7 +375,8 @@ def _step(scn: Scenario, static: Static, carry: Carry, k):
                u_hlip=carry.u_h, u_robot=carry.u_r, w=w, ref_pos=ref.position,
                ref_vel=ref.velocity, ref_heading=ref.heading, qp_status=new_plan.status,
                qp_iter=new_plan.iterations, obstacle_slack=new_plan.slack,
-               clearance=clearance, valid=active, failed_now=active & res.failed,
+               clearance=clearance, leg_gap=res.leg_gap, valid=active,
+               failed_now=active & res.failed,
                nonfinite=active & ~jnp.all(jnp.isfinite(res.x_robot)),
                qp_failed=active & ~ok)
     if ticks is not None:

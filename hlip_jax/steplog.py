@@ -29,6 +29,9 @@ and in :class:`Log` and nowhere else:
     obstacle_slack: largest keep-out slack of the MPC plan [m] (S, K)
     clearance: smallest COM distance to an obstacle's keep-out disc (inf without obstacles)
       [m] (S, K)
+    leg_gap: smallest clearance of step k (SSP⁻_k → SSP⁻_k+1) between the two feet and between
+      any two lower-leg links of opposite legs (:mod:`hlip_jax.plants.cassie.collisions`;
+      below zero: the links overlap; inf on the point-foot H-LIP plant) [m] (S, K, 2)
     valid: step k was simulated and the robot still walked (S, K) bool
     status: the scenario's outcome, one of :data:`STATUS_NAMES` (S,) int32
     fail_step: first step at which the robot fell, −1 if it did not (S,) int32
@@ -68,6 +71,7 @@ class Log(NamedTuple):
     qp_iter: np.ndarray
     obstacle_slack: np.ndarray
     clearance: np.ndarray
+    leg_gap: np.ndarray
     valid: np.ndarray
     status: np.ndarray
     fail_step: np.ndarray

@@ -45,6 +45,12 @@ def test_replay_matches_the_sweep_and_logs_every_tick(tmp_path, capsys, float64)
         t = flat["time"][flat["step"] == k]
         np.testing.assert_allclose(np.diff(t), 1e-3, atol=1e-9)
         np.testing.assert_allclose(t[0], log["t_plant"][0, k], atol=1e-9)
+    # the step log's leg clearances are the minimum of the step's ticks (the same numbers, up
+    # to the two programs' round-off, see below); the walking robot's legs stay apart
+    for k in range(steps):
+        np.testing.assert_allclose(log["leg_gap"][0, k], flat["gap"][flat["step"] == k].min(0),
+                                   atol=1e-8)
+    assert np.all(log["leg_gap"][0, :steps] > 0.0), log["leg_gap"][0, :steps]
     # passive stance foot: a foot with a site in the contact set has a zero foot motor
     c = plant.cassie()
     for f, sites in ((0, slice(0, 2)), (1, slice(2, 4))):

@@ -52,6 +52,8 @@ class StepResult(NamedTuple):
     u_robot: jax.Array      # (2,) step placed at SSP⁻_{k+1} [m]
     failed: jax.Array       # bool: the robot fell or its state is not finite
     duration: jax.Array     # plant time the step took, SSP⁻_k → SSP⁻_{k+1} [s]
+    leg_gap: jax.Array      # (2,) smallest feet and lower-leg clearances during the step [m]
+                            # (inf where the plant has no leg geometry)
 
 
 def push_table(pushes, n_push: int):

@@ -128,7 +128,8 @@ def step(params: Params, state: State, cmd: StepCommand):
     failed = ~jnp.all(jnp.isfinite(x_next)) | jnp.any(jnp.abs(p2) > params.fall_distance)
     new = State(x=x_next, u=u_next, time=state.time + params.t_dsp + params.t_ssp, key=key)
     return new, StepResult(x_robot=x_next, u_robot=u_next, failed=failed,
-                           duration=params.t_dsp + params.t_ssp)
+                           duration=params.t_dsp + params.t_ssp,
+                           leg_gap=jnp.full(2, jnp.inf, p.dtype))   # point feet: no legs
 
 
 def step_span(cfg: ScenarioConfig) -> float:

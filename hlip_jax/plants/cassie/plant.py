@@ -216,7 +216,7 @@ def _first_tick(ctx: tick.Context, state: State) -> tick.TickState:
                           sw_offset=jnp.zeros(2, dt), u_last=ctx.cmd.u_hlip_next,
                           touch=jnp.zeros((), jnp.int32),
                           fell=~jnp.asarray(ctx.cmd.live, bool),   # a dead step idles throughout
-                          real=state.real)
+                          gap=jnp.full(2, jnp.inf, dt), real=state.real)
 
 
 def _prepare(params: Params, state: State, cmd: StepCommand):
@@ -238,7 +238,7 @@ def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState
                 yaw=outputs.wrap(cmd.heading), land_xy=st_xy + s.u_last + s.sw_offset + du_err,
                 key=key, real=s.real)
     return new, StepResult(x_robot=x_r, u_robot=sw_xy - st_xy, failed=failed,
-                           duration=s.t_step)
+                           duration=s.t_step, leg_gap=s.gap)
 
 
 def step_with_log(params: Params, state: State, cmd: StepCommand,

@@ -10,6 +10,7 @@ the pelvis orientation and the COM height (the H-LIP's DSP has p̈ = 0).
 
 A tick is
 
+    gap   = proximity(s)                          feet and leg clearances of the true robot
     dm, s = sense(ctx, s)                         the state as the controller measures it
     terms = measure(ctx, dm)                      whole-body terms at the measured state
     s     = estimate(ctx, s, terms)               the stepping law's COM velocity estimate
@@ -60,7 +61,7 @@ import numpy as np
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax import hlip
 from hlip_jax.plants.base import StepCommand
-from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs, realism
+from hlip_jax.plants.cassie import clfqp, collisions, control, dynamics, model, outputs, realism
 
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
 TOUCHDOWN_TICKS = 3       # consecutive touching ticks that detect a touchdown (bounce filter)
@@ -108,6 +109,8 @@ class TickState(NamedTuple):
     u_last: jax.Array        # (2,) last step target (stance-relative, world) [m]
     touch: jax.Array         # consecutive ticks the swing foot has touched
     fell: jax.Array          # bool
+    gap: jax.Array           # (2,) smallest feet and lower-leg clearances so far this step
+                             # (:mod:`collisions`; the true robot) [m]
     real: realism.RealState | None  # torque queue, motor lag, velocity estimate, noise key
 
 
@@ -135,6 +138,7 @@ class TickLog(NamedTuple):
     y_err: jax.Array         # (16,) output errors of the active rows (outputs module order)
     grf: jax.Array           # (4, 3) contact forces at the sites, world frame [N] (QP model)
     spring: jax.Array        # (4,) leaf-spring deflections, shin L, heel L, shin R, heel R [rad]
+    gap: jax.Array           # (2,) feet and lower-leg clearances of this tick [m] (collisions)
 
 
 def robot_state(terms: model.RobotTerms, stance):
@@ -329,6 +333,14 @@ def clf_qp(ctx: Context, s: TickState, dm: mjx.Data, terms, cts: Contacts,
                        fallback=ctx.gait.hold_unsolved > 0.5, active=running(s)), meas, cond
 
 
+def proximity(s: TickState) -> jax.Array:
+    """(feet, lower legs) clearances [m] of the true robot (:func:`collisions.gaps`), from the
+    physics' last kinematics (the configuration at the start of the previous tick's MJX step,
+    one tick old): the simulated legs do not collide, so a clearance below zero is reported,
+    not resolved."""
+    return collisions.gaps(leg_capsules(), s.d.geom_xpos, s.d.geom_xmat)
+
+
 def running(s: TickState) -> jax.Array:
     """Whether this tick acts: the step has not ended and the robot has not fallen (the other
     ticks of the static budget leave the state as it is)."""
@@ -386,6 +398,7 @@ def fell(d: mjx.Data) -> jax.Array:
 
 def tick(ctx: Context, s: TickState, settings):
     """One control tick: the stages of the module doc.  Returns (TickState, TickLog)."""
+    gap = proximity(s)
     dm, s = sense(ctx, s)
     terms = measure(ctx, dm)
     s = estimate(ctx, s, terms)
@@ -401,11 +414,22 @@ def tick(ctx: Context, s: TickState, settings):
     grf = (cond.lam_tau @ res.tau + cond.lam0)[c0:c0 + dynamics.N_CONTACT_ROWS].reshape(4, 3)
     log = TickLog(com=terms.com, feet=outputs.foot_centres(terms), tau=tau, V=jnp.sum(res.V),
                   contact=cts.sites, status=res.status, pelvis=s.d.qpos[:7], phase=s.phase,
-                  u_des=u_des, y_err=e, grf=grf, spring=s.d.qpos[realism.layout(cassie()).spring_qpos])
+                  u_des=u_des, y_err=e, grf=grf, spring=s.d.qpos[realism.layout(cassie()).spring_qpos],
+                  gap=gap)
+    s = s._replace(gap=jnp.where(running(s), jnp.minimum(s.gap, gap), s.gap))
     return advance(ctx, s, cts, u_des, res, d_new), log
 
 
 _MODEL = None
+_CAPSULES = None
+
+
+def leg_capsules() -> collisions.Capsules:
+    """The lower-leg capsules of the walking robot's model (:func:`collisions.capsules`)."""
+    global _CAPSULES
+    if _CAPSULES is None:
+        _CAPSULES = collisions.capsules(cassie().mj_model)
+    return _CAPSULES
 
 
 def cassie() -> model.Cassie:
