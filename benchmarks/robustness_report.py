@@ -74,9 +74,19 @@ def e_extent(lv) -> dict:
     return out
 
 
+def _leg_events(rows) -> tuple[str, str]:
+    """(runs with a step whose lower legs overlapped / runs, smallest leg clearance [m]) of a
+    level, from summary.csv's collision columns ('–' for results written before them)."""
+    if not rows or "collision_steps" not in rows[0]:
+        return "–", "–"
+    hits = sum(float(r["collision_steps"] or 0) > 0 for r in rows)
+    gaps = [float(r["min_leg_gap"]) for r in rows if r["min_leg_gap"] not in ("", "nan")]
+    return f"{hits}/{len(rows)}", (f"{min(gaps):.3f}" if gaps else "–")
+
+
 def table(levels) -> list[str]:
-    out = ["| level | walked the scenario | RMS distance to path [m], median | E on c, sagittal / lateral [m] | across-seed coverage, sagittal / lateral |",
-           "|---|---|---|---|---|"]
+    out = ["| level | walked the scenario | RMS distance to path [m], median | E on c, sagittal / lateral [m] | across-seed coverage, sagittal / lateral | runs with leg overlap | smallest leg clearance [m] |",
+           "|---|---|---|---|---|---|---|"]
     for name, lv in levels.items():
         rows = lv["rows"]
         ok = [r for r in rows if r["status"] == "ok"]
@@ -85,7 +95,8 @@ def table(levels) -> list[str]:
         ext = " / ".join(f"{e[p][0]:.3f}" if p in e else "–" for p in ("sagittal", "lateral"))
         cv = " / ".join(f"{e[p][1]:.2f} [{e[p][2]:.2f}, {e[p][3]:.2f}]" if p in e else "–"
                         for p in ("sagittal", "lateral"))
-        out.append(f"| {name} | {rate_text(len(ok), len(rows))} | {rms:.3f} | {ext} | {cv} |")
+        hits, gap = _leg_events(rows)
+        out.append(f"| {name} | {rate_text(len(ok), len(rows))} | {rms:.3f} | {ext} | {cv} | {hits} | {gap} |")
     return out
 
 
