@@ -310,8 +310,8 @@ def test_short_walk_on_mjx(short_walk):
     passive: every tick whose contact set holds a foot gives that foot's motor zero torque.
     Steps end at detected touchdowns: no step is shorter than T_DSP + early_contact · T_SSP or
     longer than the tick budget allows (T_DSP + LATE_SSP times the swing duration), to one tick.  The forward
-    robot moves forward at no less than half the H-LIP's predicted speed (a regression bound:
-    0.55 of it is measured; the target is :func:`test_forward_speed_follows_the_hlip`)."""
+    robot moves forward at more than half the H-LIP's predicted speed (the ±10 % target is
+    :func:`test_forward_speed_follows_the_hlip`)."""
     log, ticks, n, ts, td = (short_walk.log, short_walk.ticks, short_walk.n, short_walk.ts,
                              short_walk.td)
     assert not log.failed.any(), log.failed
@@ -362,15 +362,12 @@ def _forward_speeds(walk):
     return speed, speed_hlip
 
 
-@pytest.mark.xfail(strict=True, reason="known shortfall: the robot makes ~55 % of the H-LIP's "
-                   "predicted speed (touchdown at 0.8 T_SSP while the law assumes T_SSP; "
-                   "docs/cassie_gait.md, benchmarks/cassie_step_timing.py)")
 def test_forward_speed_follows_the_hlip(short_walk):
-    """The target: over steps 4..10 the forward robot moves at the H-LIP's predicted speed
-    within 25 % (the S2S residual and a 10-step window from standing allow no tighter bound).
-    Fails today; strict, so a fix shows up as an unexpected pass."""
+    """Over steps 4..10 the forward robot moves at the H-LIP's predicted speed within 10 % (the
+    issue's speed target; 0.7 % is measured).  Before the swing was timed to the H-LIP (its
+    profile landed at 0.8 T_SSP while the law assumed T_SSP) the robot made ~55 % of it."""
     speed, speed_hlip = _forward_speeds(short_walk)
-    assert abs(speed - speed_hlip) < 0.25 * speed_hlip, (speed, speed_hlip)
+    assert abs(speed - speed_hlip) < 0.10 * speed_hlip, (speed, speed_hlip)
 
 
 def _nominal_run(v_fwd, yaw_rate, n):
