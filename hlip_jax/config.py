@@ -139,8 +139,9 @@ class CassieConfig:
     gait: str = spec("paper", doc="gait preset whose values fill the unset gait fields",
                      choices=tuple(gaits.PRESETS))
     clearance: float = spec(0.0647, 0.0, 0.3, "swing-foot apex height", "m")
-    strike: float = spec(0.0174, 0.0, 0.1, "swing target depth below the ground at the end of SSP", "m")
-    reach: float = spec(0.9333, 0.3, 1.0, "fraction of SSP at which the swing foot reaches its target")
+    strike: float = spec(0.0174, 0.0, 0.1, "swing target depth below the ground at the end of the swing profile", "m")
+    reach: float = spec(0.9333, 0.3, 1.0, "fraction of the swing profile's duration (T_SSP / s*: "
+                        "it lands at T_SSP) at which the swing foot reaches its target")
     freeze: float = spec(1.0, 0.3, 1.0, "fraction of SSP after which the step target is held")
     early_contact: float = spec(0.8914, 0.3, 1.0, "fraction of SSP after which a detected swing-foot "
                                 "touchdown ends the SSP")
