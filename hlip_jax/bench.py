@@ -3,7 +3,9 @@ Cassie plant through the stepping law and the CLF-QP, one compiled, vmapped call
 of straight-line scenarios (0, 0.2, 0.4, 0.6 m/s, the default gait), against physics-only MJX
 (zero torque, same model, same batch, same number of ticks) in the same process.
 
-Per batch size and device count: compile + first run [s], timed run [s], simulated
+Per batch size, device count and CLF-QP loop (``cassie.qp_loop``: the ADMM blocks in a while
+loop that stops when the batch has converged, or in a loop of static trip count that runs the
+whole budget; the same torques either way): compile + first run [s], timed run [s], simulated
 robot-seconds per wall-second, physics steps per second in the loop (2 per 1 kHz control tick,
 only the ticks that simulate), the physics-only rate on one device and the ratio, the fraction
 of robots still walking at the end, and the accelerator's peak memory per robot where the
@@ -17,19 +19,21 @@ from typing import Callable, Sequence
 
 SPEEDS = (0.0, 0.2, 0.4, 0.6)
 
-HEADER = ("| batch | devices | steps | compile + first [s] | run [s] | robot-s / s | physics steps/s "
-          "(closed loop) | physics only, 1 device [steps/s] | ratio | walking at end | "
-          "peak memory / robot [MiB] |\n|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+HEADER = ("| batch | devices | CLF-QP loop | steps | compile + first [s] | run [s] | robot-s / s | "
+          "physics steps/s (closed loop) | physics only, 1 device [steps/s] | ratio | walking at end | "
+          "peak memory / robot [MiB] |\n|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
 
 
-def configs(n: int, duration: float, qp_max_iter: int | None = None):
+def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: str = "while"):
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
     of docs/cassie_gait.md (the default gait preset's H-LIP timing and 3-state LQR stepping
-    gain)."""
+    gain) and the CLF-QP loop ``qp_loop`` (``CassieConfig.qp_loop``)."""
     from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
     from hlip_jax.plants.cassie import gaits
     W = gaits.preset(gaits.DEFAULT)
-    cassie = CassieConfig() if qp_max_iter is None else CassieConfig(qp_max_iter=qp_max_iter)
+    cassie = CassieConfig(qp_loop=qp_loop)
+    if qp_max_iter is not None:
+        cassie = CassieConfig(qp_max_iter=qp_max_iter, qp_loop=qp_loop)
     return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
                            hlip=HLIPConfig(z0=W["hlip.z0"], t_ssp=W["hlip.t_ssp"],
                                            t_dsp=W["hlip.t_dsp"]),
@@ -121,11 +125,41 @@ def _admm_run(batch, static, B: int, steps: int, rows: list, emit) -> list[str]:
             f"{share:.2f} |", f"| {B} | {short} | {t_short:.2f} | {B * steps / t_short:,.0f} | |"]
 
 
+def _device_runs(batch, static, B: int, steps: int, devices, emit) -> list[tuple]:
+    """The batch timed on each device count of ``devices`` (a failure is reported and
+    skipped).  Returns (devices, compile + first [s], run [s], statuses, peak bytes) each."""
+    import jax
+    import numpy as np
+
+    from hlip_jax import rollout
+    loop = "while" if static.plant_settings.early_exit else "fixed"
+    runs = []
+    for n_dev in devices:
+        if n_dev > len(jax.devices()) or B % n_dev:
+            emit(f"skipping {n_dev} devices (have {len(jax.devices())}; batch {B})")
+            continue
+        devs = jax.devices()[:n_dev]
+        placed = rollout.place(batch, rollout.scenario_sharding(devs))
+        try:
+            t_first, t_run, out = timed_run(placed, static)
+        except Exception as exc:  # noqa: BLE001 - e.g. out of accelerator memory
+            emit(f"batch {B} on {n_dev} device(s), {loop} loop failed: {type(exc).__name__}: "
+                 f"{str(exc).splitlines()[0][:200] if str(exc) else ''}")
+            continue
+        # a partial result survives a later failure or a time limit
+        emit(f"batch {B} on {n_dev} device(s), {loop} loop: compile + first {t_first:.1f} s, "
+             f"run {t_run:.2f} s, {B * steps / t_run:,.0f} physics steps/s")
+        runs.append((n_dev, t_first, t_run, np.asarray(out["status"]), _peak_bytes(devs)))
+    return runs
+
+
 def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] = (1,),
-                emit: Callable[[str], None] = print, admm: bool = False) -> list[dict]:
-    """Run the benchmark for every batch size × device count; ``emit`` gets the markdown
-    table (header, then one row per run).  With ``admm`` every batch size is also run (one
-    device) with the CLF-QP's ADMM budget cut to one convergence check, and the ADMM
+                emit: Callable[[str], None] = print, admm: bool = False,
+                qp_loops: Sequence[str] = ("while",)) -> list[dict]:
+    """Run the benchmark for every batch size × CLF-QP loop (``qp_loops``, values of
+    ``CassieConfig.qp_loop``) × device count; ``emit`` gets the markdown table (header, then
+    one row per run).  With ``admm`` every batch size is also run (one device, the first
+    loop) with the CLF-QP's ADMM budget cut to one convergence check, and the ADMM
     iterations' share of the tick follows (:func:`admm_share`, second table).  Returns one
     dict per run."""
     import jax
@@ -139,40 +173,26 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
     emit(HEADER)
     rows, admm_rows = [], []
     for B in batches:
-        batch, static = rollout.build(configs(B, duration))
+        builds = [rollout.build(configs(B, duration, qp_loop=q)) for q in qp_loops]
+        batch, static = builds[0]
         T = float(np.asarray(batch.t_ssp[0] + batch.t_dsp[0]))
         ticks = static.n_steps * int(round(T / control.CONTROL_DT))
         steps = ticks * control.SUBSTEPS
-        sim_s = B * static.n_steps * T
-        runs = []
-        for n_dev in devices:
-            if n_dev > len(jax.devices()) or B % n_dev:
-                emit(f"skipping {n_dev} devices (have {len(jax.devices())}; batch {B})")
-                continue
-            devs = jax.devices()[:n_dev]
-            placed = rollout.place(batch, rollout.scenario_sharding(devs))
-            try:
-                t_first, t_run, out = timed_run(placed, static)
-            except Exception as exc:  # noqa: BLE001 - e.g. out of accelerator memory
-                emit(f"batch {B} on {n_dev} device(s) failed: {type(exc).__name__}: "
-                     f"{str(exc).splitlines()[0][:200] if str(exc) else ''}")
-                continue
-            peak = _peak_bytes(devs)
-            # a partial result survives a later failure or a time limit
-            emit(f"batch {B} on {n_dev} device(s): compile + first {t_first:.1f} s, "
-                 f"run {t_run:.2f} s, {B * steps / t_run:,.0f} physics steps/s")
-            runs.append((n_dev, t_first, t_run, np.asarray(out["status"]), peak))
+        runs = [(st_q, r) for b_q, st_q in builds
+                for r in _device_runs(b_q, st_q, B, steps, devices, emit)]
         prate = _physics_only_rate(B, ticks, steps)
-        for n_dev, t_first, t_run, status, peak in runs:
+        for st_q, (n_dev, t_first, t_run, status, peak) in runs:
+            loop = "while" if st_q.plant_settings.early_exit else "fixed"
             rate = B * steps / t_run
-            row = dict(batch=B, devices=n_dev, steps=static.n_steps, compile_first_s=t_first,
-                       run_s=t_run, robot_s_per_s=sim_s / t_run, physics_steps_per_s=rate,
+            row = dict(batch=B, devices=n_dev, qp_loop=loop, steps=static.n_steps,
+                       compile_first_s=t_first, run_s=t_run,
+                       robot_s_per_s=B * static.n_steps * T / t_run, physics_steps_per_s=rate,
                        physics_only_steps_per_s=prate, ratio=rate / prate,
                        walking=float(np.mean(status == steplog.STATUS_OK)),
                        peak_mib_per_robot=None if peak is None else peak / B / 2**20)
             rows.append(row)
             mem = "–" if peak is None else f"{row['peak_mib_per_robot']:.2f}"
-            emit(f"| {B} | {n_dev} | {static.n_steps} | {t_first:.1f} | {t_run:.2f} | "
+            emit(f"| {B} | {n_dev} | {loop} | {static.n_steps} | {t_first:.1f} | {t_run:.2f} | "
                  f"{row['robot_s_per_s']:,.1f} | {rate:,.0f} | {prate:,.0f} | {row['ratio']:.2f} | "
                  f"{row['walking']:.3f} | {mem} |")
         if admm:

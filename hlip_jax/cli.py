@@ -228,6 +228,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--admm", action="store_true",
                    help="also time each batch with the CLF-QP's ADMM budget cut to one "
                    "convergence check and report the ADMM iterations' share of the tick")
+    b.add_argument("--qp-loop", nargs="+", default=["while"], choices=("while", "fixed"),
+                   metavar="LOOP", help="CLF-QP block loops to time, each on the same batch in this "
+                   "process (cassie.qp_loop: while, fixed)")
     b.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
     return ap
 
@@ -416,7 +419,8 @@ def cmd_bench(args) -> int:
     import json
 
     from hlip_jax import bench
-    rows = bench.closed_loop(args.batch, args.duration, args.devices, admm=args.admm)
+    rows = bench.closed_loop(args.batch, args.duration, args.devices, admm=args.admm,
+                             qp_loops=args.qp_loop)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return EXIT_OK

@@ -160,6 +160,10 @@ class CassieConfig:
     qp_max_iter: int = spec(150, 25, 5000, "ADMM iteration budget of the CLF-QP per control tick "
                             "(static: one compile per value, equal across a batch)")
     qp_eps: float = spec(1e-4, 1e-8, 1e-1, "ADMM absolute and relative tolerance of the CLF-QP (static)")
+    qp_loop: str = spec("while", doc="the CLF-QP's ADMM block loop (static): 'while' stops when every "
+                        "robot's QP of the batch has converged; 'fixed' always runs the whole budget in a "
+                        "loop of static trip count (the same torques; on an H100 2.2x slower at batch 32, "
+                        "BENCHMARKS.md)", choices=("while", "fixed"))
     qp_fallback: str = spec("hold", doc="torques of a tick whose CLF-QP the ADMM budget did not solve: "
                             "the previous tick's ('hold') or the last iterate clipped to the limits ('iterate')",
                             choices=("hold", "iterate"))

@@ -26,9 +26,14 @@ splitting solver for quadratic programs", Math. Prog. Comp. 2020), on dense matr
 6. *Adaptive ρ*: ρ ← ρ √((r_prim/‖·‖) / (r_dual/‖·‖)) in scaled quantities, applied when it changes
    by more than ``adaptive_rho_tolerance``, checked every ``adaptive_rho_interval`` iterations.
 
-The iteration runs as a ``lax.while_loop`` over blocks of ``check_interval`` iterations
-(``lax.fori_loop`` inside), so a vmapped batch stops as soon as every problem is done; a finished
-problem is frozen (``jnp.where``) and keeps its own iteration count and status.  Status codes are
+The iteration runs over blocks of ``check_interval`` iterations (``lax.fori_loop`` inside); a
+finished problem is frozen (``jnp.where``) and keeps its own iteration count and status.  With
+``Settings.early_exit`` the blocks run in a ``lax.while_loop``, so a vmapped batch stops as soon
+as every problem is done; without it they run in a loop of static trip count
+⌈max_iter / check_interval⌉ (no data-dependent exit).  A problem's iterates are the same either
+way: the extra blocks only touch problems that are already frozen.  In the Cassie tick on an H100
+the while loop is the faster one (the blocks it saves cost more than its predicate's trips to the
+host; BENCHMARKS.md).  Status codes are
 OSQP 1.x's.  dtype follows the inputs (float32 or float64); products run at highest precision.
 """
 
@@ -94,6 +99,8 @@ class Settings(NamedTuple):
     linsys: "cholesky" (cho_solve each iteration) or "inverse" (K⁻¹ formed once per factorisation
       from the Cholesky factor, then matrix–vector products; faster for batches, slightly less
       accurate for badly conditioned K).
+    early_exit: stop the block loop when every problem is done (a while loop); False: always
+      run ⌈max_iter / check_interval⌉ blocks (a loop of static trip count; same results).
     """
 
     eps_abs: float = 1e-3
@@ -110,6 +117,7 @@ class Settings(NamedTuple):
     adaptive_rho_tolerance: float = 5.0
     check_interval: int = 25
     linsys: str = "cholesky"
+    early_exit: bool = True
 
 
 class Solution(NamedTuple):
@@ -162,6 +170,8 @@ def validate_settings(s: Settings) -> None:
         bad("adaptive_rho_tolerance", "[1, inf)")
     if s.linsys not in ("cholesky", "inverse"):
         bad("linsys", "{'cholesky', 'inverse'}")
+    if not isinstance(s.early_exit, bool):
+        bad("early_exit", "{True, False}")
 
 
 # --- helpers -----------------------------------------------------------------------------------
@@ -456,6 +466,20 @@ def _block(d: "_Scaled", s: Settings, st: "_State") -> "_State":
     return jax.tree.map(lambda a, b: jnp.where(st.done, a, b), st, new)
 
 
+def n_blocks(s: Settings) -> int:
+    """Blocks that bring every problem to a final status: ⌈max_iter / check_interval⌉ (the
+    last, partial block stops at max_iter, where every status is final)."""
+    return -(-s.max_iter // s.check_interval)
+
+
+def _blocks(d: "_Scaled", s: Settings, st: "_State") -> "_State":
+    """The outer loop: until every problem is done (``early_exit``), or :func:`n_blocks`
+    blocks (static trip count; blocks after a problem is done leave it as it is)."""
+    if s.early_exit:
+        return lax.while_loop(lambda st: ~st.done, lambda st: _block(d, s, st), st)
+    return lax.fori_loop(0, n_blocks(s), lambda _, st: _block(d, s, st), st)
+
+
 def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
     """Solve one problem (no batch axes); traced under jit / vmap: sanitise, scale (Ruiz
     equilibration and cost scaling), blocks of ADMM steps until every status is final,
@@ -464,7 +488,7 @@ def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
     Ps, qs, As, D, E, c = _ruiz(P, q, A, s.scaling)
     d = _Scaled(Ps, qs, As, E * l, E * u, l_inf, u_inf, D, E, c)
     st = _initial_state(d, s, x0, y0, valid, warm)
-    st = lax.while_loop(lambda st: ~st.done, lambda st: _block(d, s, st), st)
+    st = _blocks(d, s, st)
     nan = jnp.asarray(jnp.nan, q.dtype)
     x = jnp.where(valid, d.D * st.x, nan)
     y = jnp.where(valid, d.E * st.y / d.c, nan)

@@ -194,7 +194,8 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
                            ("mpc.qp_eps", c.mpc.qp_eps, first.mpc.qp_eps),
                            ("plant", c.plant, first.plant),
                            ("cassie.qp_max_iter", c.cassie.qp_max_iter, first.cassie.qp_max_iter),
-                           ("cassie.qp_eps", c.cassie.qp_eps, first.cassie.qp_eps)):
+                           ("cassie.qp_eps", c.cassie.qp_eps, first.cassie.qp_eps),
+                           ("cassie.qp_loop", c.cassie.qp_loop, first.cassie.qp_loop)):
             if a != b:
                 raise ValueError(f"{name} must be the same for every scenario of a batch "
                                  f"(it fixes shapes/compiled settings): got {a!r} and {b!r}")

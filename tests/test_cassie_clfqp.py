@@ -172,6 +172,33 @@ def test_clfqp_respects_limits_and_matches_osqp(cassie, terms_fn):
     assert np.all(np.asarray(res.tau) >= lo) and np.all(np.asarray(res.tau) <= hi)
 
 
+
+def test_fixed_trip_count_loop_gives_the_same_torques(cassie, terms_fn):
+    # the tick's CLF-QP settings with the ADMM blocks in a loop of static trip count
+    # (cassie.qp_loop = "fixed", the accelerator default) against the while loop: the same
+    # torques to 1e-12 N m (float64; two compiled programs may round differently), the same
+    # status and iteration count, on a perturbed state and from a warm start
+    d = _data(cassie, qpos_noise=0.01, qvel_noise=0.2, seed=5)
+    terms = terms_fn(d)
+    contact = jnp.array([1.0, 1.0, 0.0, 0.0])
+    meas = outputs.measure(terms, d.qvel, cassie.index.root_dof)
+    cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie))
+    com = np.asarray(terms.com)
+    des = outputs.stand_desired(com[2] - 0.02, com[:2], 0.0)
+    lo, hi = cassie.ctrl_range[:, 0], cassie.ctrl_range[:, 1]
+    warm = control.warm_zeros(cassie, jnp.float64)
+    s = clfqp.DEFAULT_SETTINGS
+    results = []
+    for early in (True, False):
+        r0 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, warm,
+                         s._replace(early_exit=early))
+        r1 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, r0.warm,
+                         s._replace(early_exit=early))
+        results.append((r0, r1))
+    for a, b in zip(*results):
+        np.testing.assert_allclose(a.tau, b.tau, atol=1e-12, rtol=0)
+        assert int(a.status) == int(b.status) and int(a.iterations) == int(b.iterations)
+
 # ------------------------------------------------------------------------- standing on MJX
 
 CHUNK = 250          # control ticks per compiled call (0.25 s)

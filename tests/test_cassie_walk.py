@@ -205,6 +205,12 @@ def test_make_params_pushes_and_validation():
     with pytest.raises(ValueError, match="cassie.qp_max_iter"):
         rollout.build([cfg2, cfg3])
     assert rollout.build([ScenarioConfig()])[1].plant_settings is None     # H-LIP plant
+    # the CLF-QP's block loop is static and sweep-wide too
+    assert rollout.build([cfg3])[1].plant_settings.early_exit is True
+    cfg4 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_loop="fixed", qp_max_iter=50))
+    assert rollout.build([cfg4])[1].plant_settings.early_exit is False
+    with pytest.raises(ValueError, match="cassie.qp_loop"):
+        rollout.build([cfg3, cfg4])
 
 
 def test_scenario_model_sets_the_spring_damping():

@@ -263,7 +263,8 @@ def test_inverse_linsys_matches_cholesky():
 
 @pytest.mark.parametrize("field,value", [("alpha", 2.0), ("rho", 0.0), ("max_iter", 0),
                                          ("scaling", -1), ("adaptive_rho_interval", 30),
-                                         ("linsys", "lu"), ("eps_prim_inf", -1.0)])
+                                         ("linsys", "lu"), ("eps_prim_inf", -1.0),
+                                         ("early_exit", 1)])
 def test_bad_settings_name_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         qp.solve(np.eye(2), np.zeros(2), np.eye(2), -np.ones(2), np.ones(2),
@@ -287,3 +288,28 @@ def test_batch_chunks_do_not_change_results():
     np.testing.assert_array_equal(a.iterations, b.iterations)
     np.testing.assert_array_equal(a.status, b.status)
     np.testing.assert_allclose(a.x, b.x, atol=1e-10)
+
+
+@pytest.mark.parametrize("max_iter,check", [(400, 25), (37, 10)])
+def test_fixed_trip_count_loop_gives_the_same_solutions(max_iter, check):
+    # early_exit=False runs ceil(max_iter / check) blocks whatever the batch does; the blocks
+    # after a problem is done leave it frozen, so every problem runs the same iterations as in
+    # the while loop.  Iterations and statuses must agree exactly; x and y to 1e-12 (float64):
+    # the two loops are different compiled programs, whose fusions may round differently.
+    rng = np.random.default_rng(77)
+    probs = [random_qp(rng, 6, 14) for _ in range(3)] + [primal_infeasible_qp(rng, 6, 14)]
+    nan = [a.copy() for a in probs[0]]
+    nan[1][0] = np.nan
+    args = stack(probs + [nan])
+    s = TIGHT64._replace(max_iter=max_iter, check_interval=check, adaptive_rho_interval=check)
+    a = qp.solve(*args, settings=s)
+    b = qp.solve(*args, settings=s._replace(early_exit=False))
+    np.testing.assert_array_equal(a.status, b.status)
+    np.testing.assert_array_equal(a.iterations, b.iterations)
+    for u, v in ((a.x, b.x), (a.y, b.y)):
+        np.testing.assert_allclose(u, v, atol=1e-12, rtol=0)
+    assert qp.n_blocks(s) * check >= max_iter > (qp.n_blocks(s) - 1) * check
+    # at 37 iterations the budget ends some problem early: the max_iter path ran in both loops
+    if max_iter < 100:
+        assert np.any(np.isin(np.asarray(a.status), [qp.MAX_ITER, qp.SOLVED_INACCURATE,
+                                                     qp.PRIMAL_INFEASIBLE_INACCURATE]))

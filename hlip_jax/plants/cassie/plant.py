@@ -276,9 +276,11 @@ def step(params: Params, state: State, cmd: StepCommand, settings=clfqp.DEFAULT_
 
 
 def settings(cfg):
-    """The CLF-QP's static ADMM settings of a scenario (``cassie.qp_max_iter``, ``qp_eps``)."""
-    return clfqp.DEFAULT_SETTINGS._replace(max_iter=cfg.cassie.qp_max_iter,
-                                           eps_abs=cfg.cassie.qp_eps, eps_rel=cfg.cassie.qp_eps)
+    """The CLF-QP's static ADMM settings of a scenario (``cassie.qp_max_iter``, ``qp_eps``,
+    ``qp_loop``)."""
+    return clfqp.DEFAULT_SETTINGS._replace(
+        max_iter=cfg.cassie.qp_max_iter, eps_abs=cfg.cassie.qp_eps, eps_rel=cfg.cassie.qp_eps,
+        early_exit=cfg.cassie.qp_loop == "while")
 
 
 PLANT = Plant(name="cassie", make_params=make_params, init=init, step=step,
