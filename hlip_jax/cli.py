@@ -7,6 +7,10 @@
     hlip-sweep report DIR
     hlip-sweep list
     hlip-sweep show SWEEP [--plant ...] [--duration S] [--limit N]
+    hlip-sweep ticks DIR SCENARIO            (the controller's 1 kHz log of one Cassie run)
+    hlip-sweep s2s DIR [--scenarios REGEX] [--skip K]   (the robot's S2S map, least squares)
+    hlip-sweep coverage DIR [--q Q] [--train-on FIELD=V1,V2]
+    hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...]
 
 SWEEP is a path to a TOML sweep file or the name of a shipped one (``paper`` for
 ``sweeps/paper.toml``).  Exit codes: 0 success; 1 the run stopped incomplete (``--max-chunks``,
@@ -202,10 +206,21 @@ def build_parser() -> argparse.ArgumentParser:
     tk = sub.add_parser("ticks", help="per-tick diagnostics of one Cassie scenario of a results "
                         "directory", description="Re-simulate one scenario of DIR alone with the "
                         "controller's 1 kHz log and write DIR/ticks/INDEX.npz and INDEX.png "
-                        "(output errors, torques, contact forces, CLF-QP status, phase).")
+                        "(output errors, torques, contact forces, CLF-QP status, phase, and the COM-height "
+                        "acceleration the CLF-QP's model predicts beside the measured one).")
     tk.add_argument("dir", metavar="DIR")
     tk.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
     _cache_options(tk)
+
+    fs = sub.add_parser("s2s", help="fit the robot's step-to-step map from a results directory",
+                        description="Least-squares S2S map [p, v]+ = A [p, v] + B u + c(stance) "
+                        "per plane of the heading frame, from the step logs of DIR, beside the "
+                        "planner's H-LIP (hlip_jax/s2s_fit.py).")
+    fs.add_argument("dir", metavar="DIR")
+    fs.add_argument("--scenarios", metavar="REGEX", default="",
+                    help="only scenarios whose name matches REGEX (Python re.search)")
+    fs.add_argument("--skip", type=int, default=4, metavar="K",
+                    help="leave out the first K steps of every run (start from rest; >= 0)")
 
     sub.add_parser("list", help="list the shipped sweeps", description="List sweeps/*.toml.")
 
@@ -362,7 +377,45 @@ def cmd_coverage(args) -> int:
     return EXIT_OK
 
 
+def cmd_s2s(args) -> int:
+    import re
+
+    import numpy as np
+
+    from hlip_jax import s2s_fit, store
+    d = Path(args.dir)
+    if not d.is_dir():
+        raise UserError(f"{d}: results directory not found")
+    if args.skip < 0:
+        raise UserError(f"--skip: expected an integer >= 0, got {args.skip}")
+    try:
+        pattern = re.compile(args.scenarios)
+    except re.error as err:
+        raise UserError(f"--scenarios: not a regular expression ({err})") from None
+    store.check_chunks(d)
+    names = [c["name"] for c in store.read_manifest(d)["configs"]]
+    chosen = [i for i, n in enumerate(names) if pattern.search(n)]
+    if not chosen:
+        raise UserError(f"--scenarios: {args.scenarios!r} matches none of the {len(names)} scenarios")
+    log = store.load_log(d)
+    try:
+        f = s2s_fit.fit(log, chosen, args.skip)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    A_h, B_h = s2s_fit.hlip_rows(log["A"][chosen[0]], log["B"][chosen[0]])
+    print(f"{len(chosen)} scenarios, {f.n} step pairs (heading frame; regressor rank {[int(r) for r in f.rank]} of 5)")
+    for j, plane in enumerate(("sagittal", "lateral")):
+        for r, name in enumerate(("p+", "v+")):
+            fit_row = np.r_[f.A[j, r], f.B[j, r]]
+            print(f"{plane:<9} {name}: fit  {fit_row[0]:+8.3f} p {fit_row[1]:+8.3f} v {fit_row[2]:+8.3f} u"
+                  f"  offsets L {f.offset[j, 0, r]:+.3f} R {f.offset[j, 1, r]:+.3f}  residual RMS {f.rms[j, r]:.4f}")
+            print(f"{'':<9} {'':<3} H-LIP {A_h[r, 0]:+8.3f} p {A_h[r, 1]:+8.3f} v {B_h[r]:+8.3f} u")
+    return EXIT_OK
+
+
 def cmd_ticks(args) -> int:
+    import numpy as np
+
     from hlip_jax import store, tick_report
     _use_cache(args)
     d = Path(args.dir)
@@ -382,6 +435,10 @@ def cmd_ticks(args) -> int:
         raise UserError(str(err)) from None
     print(f"ticks: {npz}")
     print(f"       {png}")
+    mm = tick_report.mismatch(dict(np.load(npz)))
+    for phase, (meas, model) in mm.items():
+        print(f"COM height acceleration, mean over {phase.upper()} ticks: measured {meas:+.3f}, "
+              f"CLF-QP model {model:+.3f} m/s²")
     return EXIT_OK
 
 
@@ -434,7 +491,8 @@ def main(argv=None) -> int:
 
     args = build_parser().parse_args(argv)
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
-               "bench": cmd_bench, "ticks": cmd_ticks, "coverage": cmd_coverage}[args.cmd]
+               "bench": cmd_bench, "ticks": cmd_ticks, "coverage": cmd_coverage,
+               "s2s": cmd_s2s}[args.cmd]
     try:
         with _sigterm_unwinds():
             return handler(args)

@@ -6,7 +6,15 @@ chosen scenario alone from the configs in the directory's manifest (the sweep's 
 sizes, so the same run up to the floating-point differences of a batch of one; a chaotic fall
 can diverge late) with the plant's tick log (:class:`hlip_jax.plants.cassie.tick.TickLog`),
 and writes ``ticks/<index>.npz`` (the ticks that ran, idle ones after each touchdown dropped,
-with the plant time ``time`` [s] and the step index ``step``) and ``ticks/<index>.png``.
+with the plant time ``time`` [s], the step index ``step`` and the measured output
+accelerations ``ydd_meas``) and ``ticks/<index>.png``.
+
+Model mismatch: every tick logs the output accelerations the CLF-QP's model predicts for the
+torques it applied (``ydd_model``: rigid leaf springs, the tick's contact set) and the output
+velocities ẏ; the measured acceleration over tick i is the forward difference
+(ẏ_{i+1} − ẏ_i) / Δt (:func:`measured_accel`).  :func:`mismatch` averages both per phase for
+the COM height: where they part, the robot does not move as the controller's model says, and
+the output's PD feedback has to absorb the difference.
 """
 
 from __future__ import annotations
@@ -36,13 +44,49 @@ def flatten(ticks: dict, step_log: dict, dt: float) -> dict:
     return out
 
 
+def measured_accel(flat: dict) -> np.ndarray:
+    """Measured output accelerations (n, 16): the forward difference of ``ydot`` over the
+    plant clock, (ẏ_{i+1} − ẏ_i) / (t_{i+1} − t_i), i.e. the mean acceleration over tick i
+    (the tick that ``ydd_model[i]`` predicts); NaN at the last tick and where the next
+    logged tick is not the next millisecond (a fall ends the log)."""
+    yd = np.asarray(flat["ydot"], np.float64)
+    t = np.asarray(flat["time"], np.float64)
+    out = np.full(yd.shape, np.nan)
+    dt = np.diff(t)
+    ok = dt < 1.5 * np.median(dt) if dt.size else dt.astype(bool)
+    out[:-1][ok] = (np.diff(yd, axis=0)[ok]) / dt[ok, None]
+    return out
+
+
+def mismatch(flat: dict, row: int = 3) -> dict:
+    """Per phase ("dsp", "ssp"): (mean measured, mean model-predicted) acceleration of output
+    ``row`` (default the COM height) over the ticks of that phase [m/s² or rad/s²]."""
+    from hlip_jax.plants.cassie import tick
+    meas = flat["ydd_meas"][:, row]
+    model = np.asarray(flat["ydd_model"])[:, row]
+    out = {}
+    for name, ph in (("dsp", tick.DSP), ("ssp", tick.SSP)):
+        on = (np.asarray(flat["phase"]) == ph) & np.isfinite(meas)
+        out[name] = (float(meas[on].mean()), float(model[on].mean())) if on.any() else (np.nan, np.nan)
+    return out
+
+
+def _smooth(x: np.ndarray, n: int = 10) -> np.ndarray:
+    """Moving average over n ticks (NaN-aware: NaN ticks count as absent)."""
+    ok = np.isfinite(x)
+    k = np.ones(n)
+    num = np.convolve(np.where(ok, x, 0.0), k, "same")
+    den = np.convolve(ok.astype(float), k, "same")
+    return np.where(den > 0, num / np.maximum(den, 1), np.nan)
+
+
 def figure(flat: dict, title: str, path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     t = flat["time"]
-    fig, ax = plt.subplots(5, 1, figsize=(9, 11), sharex=True)
+    fig, ax = plt.subplots(6, 1, figsize=(9, 13), sharex=True)
     ax[0].plot(t, flat["com"][:, 2], label="COM z")
     ax[0].plot(t, flat["pelvis"][:, 2], label="pelvis z")
     ax[0].set_ylabel("[m]")
@@ -60,7 +104,11 @@ def figure(flat: dict, title: str, path) -> None:
     ax[4].plot(t, flat["status"], ".", ms=2, label="CLF-QP status")
     ax[4].plot(t, flat["contact"].sum(axis=1), label="sites in contact")
     ax[4].legend(loc="upper right", fontsize=7)
-    ax[4].set_xlabel("plant time [s]")
+    ax[5].plot(t, _smooth(flat["ydd_meas"][:, 3]), label="measured")
+    ax[5].plot(t, _smooth(np.asarray(flat["ydd_model"])[:, 3]), label="CLF-QP model")
+    ax[5].set_ylabel("COM height accel.\n[m/s², 10 ms mean]")
+    ax[5].legend(loc="upper right", fontsize=7)
+    ax[5].set_xlabel("plant time [s]")
     ax[0].set_title(title)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -82,6 +130,7 @@ def replay(out_dir, index: int) -> tuple[pathlib.Path, pathlib.Path]:
     folder = pathlib.Path(out_dir) / "ticks"
     folder.mkdir(exist_ok=True)
     npz, png = folder / f"{index}.npz", folder / f"{index}.png"
+    flat["ydd_meas"] = measured_accel(flat)
     store.save_npz_atomic(npz, flat)
     status = steplog.STATUS_NAMES.get(int(step_log["status"]), "?")
     figure(flat, f"#{index} {configs[index].name} ({status})", png)

@@ -66,7 +66,7 @@ def test_help_subprocess():
     assert r.returncode == 0 and "usage: hlip-sweep" in r.stdout and "run" in r.stdout
 
 
-@pytest.mark.parametrize("sub", [["run"], ["report"], ["list"], ["show"]])
+@pytest.mark.parametrize("sub", [["run"], ["report"], ["list"], ["show"], ["s2s"], ["ticks"]])
 def test_help_everywhere(sub, capsys):
     code, out, _ = cli(capsys, *sub, "--help")
     assert code == 0 and "usage: hlip-sweep" in out
@@ -633,3 +633,19 @@ def test_coverage_command(tmp_path, tiny_sweep, capsys, fake_loop):
         assert code == 2 and field in err and "Traceback" not in err
     code, _, err = cli(capsys, "coverage", tmp_path / "missing")
     assert code == 2 and "not found" in err
+
+
+def test_s2s_fit_command(tmp_path, tiny_sweep, capsys, fake_loop):
+    code, _, err = cli(capsys, "s2s", tmp_path / "nope")
+    assert code == 2 and "not found" in err
+    out = tmp_path / "r"
+    _run_ok(capsys, tiny_sweep, out)
+    code, _, err = cli(capsys, "s2s", out, "--scenarios", "no-such-path")
+    assert code == 2 and "--scenarios" in err and "matches none" in err
+    code, _, err = cli(capsys, "s2s", out, "--scenarios", "(")
+    assert code == 2 and "--scenarios" in err
+    code, _, err = cli(capsys, "s2s", out, "--skip", "-1")
+    assert code == 2 and "--skip" in err
+    code, text, err = cli(capsys, "s2s", out, "--scenarios", "line")
+    assert code == 0, err
+    assert "2 scenarios" in text and text.count("H-LIP") == 4

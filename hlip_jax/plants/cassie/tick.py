@@ -123,9 +123,10 @@ class Contacts(NamedTuple):
 
 
 class TickLog(NamedTuple):
-    """Per-tick record (leading axis: ticks of the step).  ``com``, ``feet``, ``y_err`` and
-    ``grf`` are what the controller computes from its measurement (the truth on an ideal
-    robot); ``pelvis``, ``spring`` and ``tau`` are the simulated robot's."""
+    """Per-tick record (leading axis: ticks of the step).  ``com``, ``feet``, ``y_err``,
+    ``grf``, ``ydot`` and ``ydd_model`` are what the controller computes from its measurement
+    (the truth on an ideal robot); ``pelvis``, ``spring`` and ``tau`` are the simulated
+    robot's."""
     com: jax.Array           # (3,) COM [m]
     feet: jax.Array          # (2, 3) foot centres [m]
     tau: jax.Array           # (10,) torques the motors apply [N m, motor side]
@@ -139,6 +140,12 @@ class TickLog(NamedTuple):
     grf: jax.Array           # (4, 3) contact forces at the sites, world frame [N] (QP model)
     spring: jax.Array        # (4,) leaf-spring deflections, shin L, heel L, shin R, heel R [rad]
     gap: jax.Array           # (2,) feet and lower-leg clearances of this tick [m] (collisions)
+    ydot: jax.Array          # (16,) output velocities ẏ = J q̇ at the tick's measured state
+                             # [m/s, rad/s] (outputs module order; orientation rows: ω)
+    ydd_model: jax.Array     # (16,) output accelerations ÿ = J (q̈_τ τ + q̈₀) + J̇q̇ that the
+                             # CLF-QP's model (rigid leaf springs, the contact set) predicts for
+                             # the applied torques [m/s², rad/s²]; against the measured ÿ
+                             # (the time derivative of ``ydot``) it shows the model's mismatch
 
 
 def robot_state(terms: model.RobotTerms, stance):
@@ -412,10 +419,11 @@ def tick(ctx: Context, s: TickState, settings):
     e, _ = outputs.errors(meas, des)
     c0 = dynamics.N_LOOP_ROWS
     grf = (cond.lam_tau @ res.tau + cond.lam0)[c0:c0 + dynamics.N_CONTACT_ROWS].reshape(4, 3)
+    ydd_model = meas.J @ (cond.qdd_tau @ tau + cond.qdd0) + meas.jdqd
     log = TickLog(com=terms.com, feet=outputs.foot_centres(terms), tau=tau, V=jnp.sum(res.V),
                   contact=cts.sites, status=res.status, pelvis=s.d.qpos[:7], phase=s.phase,
                   u_des=u_des, y_err=e, grf=grf, spring=s.d.qpos[realism.layout(cassie()).spring_qpos],
-                  gap=gap)
+                  gap=gap, ydot=meas.ydot, ydd_model=ydd_model)
     s = s._replace(gap=jnp.where(running(s), jnp.minimum(s.gap, gap), s.gap))
     return advance(ctx, s, cts, u_des, res, d_new), log
 
