@@ -8,7 +8,9 @@ the ideal plant name it): runs that walked the whole scenario, with the 95 % Clo
 interval; the median RMS COM-to-path distance of those runs; and the error-invariant set E of
 the level — W the box of the S2S residuals of half of the seeds (pushes excluded; both paths
 pooled: they share A, B and K), E = mRPI(A + BK, W), its half-extent on the global position c
-per plane [m] — with the across-seed coverage of the other half.  Prints Markdown;
+per plane [m] — with the across-seed coverage of the other half; the leg-overlap events; and
+the median error of the controller's own state estimate at SSP⁻ (p and v: what the stepping
+law acted on, against the truth).  Prints Markdown;
 ``--figure`` draws success rate and E's extent per level.
 """
 
@@ -84,9 +86,18 @@ def _leg_events(rows) -> tuple[str, str]:
     return f"{hits}/{len(rows)}", (f"{min(gaps):.3f}" if gaps else "–")
 
 
+def _estimate_error(rows) -> str:
+    """Median over a level's runs of the controller's state-estimate error at SSP⁻, p [m] and
+    v [m/s] (summary.csv's est_err_p / est_err_v; '–' for results written before them)."""
+    if not rows or "est_err_p" not in rows[0]:
+        return "–"
+    med = [np.nanmedian([float(r[k] or "nan") for r in rows]) for k in ("est_err_p", "est_err_v")]
+    return f"{med[0]:.4f} / {med[1]:.3f}"
+
+
 def table(levels) -> list[str]:
-    out = ["| level | walked the scenario | RMS distance to path [m], median | E on c, sagittal / lateral [m] | across-seed coverage, sagittal / lateral | runs with leg overlap | smallest leg clearance [m] |",
-           "|---|---|---|---|---|---|---|"]
+    out = ["| level | walked the scenario | RMS distance to path [m], median | E on c, sagittal / lateral [m] | across-seed coverage, sagittal / lateral | runs with leg overlap | smallest leg clearance [m] | estimate error p [m] / v [m/s], median |",
+           "|---|---|---|---|---|---|---|---|"]
     for name, lv in levels.items():
         rows = lv["rows"]
         ok = [r for r in rows if r["status"] == "ok"]
@@ -96,7 +107,8 @@ def table(levels) -> list[str]:
         cv = " / ".join(f"{e[p][1]:.2f} [{e[p][2]:.2f}, {e[p][3]:.2f}]" if p in e else "–"
                         for p in ("sagittal", "lateral"))
         hits, gap = _leg_events(rows)
-        out.append(f"| {name} | {rate_text(len(ok), len(rows))} | {rms:.3f} | {ext} | {cv} | {hits} | {gap} |")
+        out.append(f"| {name} | {rate_text(len(ok), len(rows))} | {rms:.3f} | {ext} | {cv} | {hits} | {gap} "
+                   f"| {_estimate_error(rows)} |")
     return out
 
 

@@ -42,6 +42,10 @@ scenario's valid pre-impact samples k, i.e. the steps before any failure.
   inf on the point-foot H-LIP plant).  ``collision_steps``: valid steps whose lower-leg
   clearance went below zero — the simulated legs pass through each other where a real robot's
   would collide (:mod:`hlip_jax.plants.cassie.collisions`).
+* ``est_err_p`` [m], ``est_err_v`` [m/s]: RMS over the valid steps and both planes of the
+  controller's estimate minus the truth at SSP⁻ (the step log's ``x_est − x_robot``) for p and
+  v: how far off the state the stepping law acted on was (0 where the plant senses perfectly;
+  NaN for results written before the estimate was logged).
 """
 
 from __future__ import annotations
@@ -58,7 +62,7 @@ SUMMARY_METRICS = (
     "cov_x_inner", "cov_x_outer", "cov_x_heldout", "cov_y_inner", "cov_y_outer", "cov_y_heldout",
     "qp_failures", "min_clearance", "e_size_x", "e_size_y", "push_peak_err",
     "push_recovery_steps", "place_err_rms", "place_err_along", "min_feet_gap", "min_leg_gap",
-    "collision_steps",
+    "collision_steps", "est_err_p", "est_err_v",
 )
 
 #: COM-to-path distance a pushed robot must return to and stay within [m] (the paper's push
@@ -224,6 +228,9 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
     h = np.asarray(log["ref_heading"][s], np.float64)[mask]
     m["place_err_rms"] = float(np.sqrt(np.mean(np.sum(du ** 2, axis=1))))
     m["place_err_along"] = float(np.mean(np.cos(h) * du[:, 0] + np.sin(h) * du[:, 1]))
+    if "x_est" in log:
+        de = (np.asarray(log["x_est"][s], np.float64) - np.asarray(log["x_robot"][s], np.float64))[mask]
+        m["est_err_p"], m["est_err_v"] = (float(np.sqrt(np.mean(de[:, :, j] ** 2))) for j in (1, 2))
     e = np.abs(np.asarray(log["e"][s], np.float64)[mask])            # (n, 2, 3)
     for p, plane in enumerate("xy"):
         for j, comp in enumerate("cpv"):

@@ -309,6 +309,7 @@ class Carry(NamedTuple):
     x_h: jax.Array        # (2, 3) H-LIP state
     u_h: jax.Array        # (2,) H-LIP step placed at SSP⁻_k [m]
     x_r: jax.Array        # (2, 3) robot state
+    x_e: jax.Array        # (2, 3) robot state as its controller estimated it
     u_r: jax.Array        # (2,) robot step placed at SSP⁻_k [m]
     plan: mpc.Plan        # the MPC plan that chose u_h
     pstate: object        # the plant's state
@@ -338,7 +339,7 @@ def _start(scn: Scenario, static: Static):
     u_r0 = u_h0  # x_R,0 = x_H,0
     heading0 = paths.reference(scn.path, jnp.zeros((), dt)).heading
     pstate = plant.init(scn.plant, scn.x0, u_r0, stance0, scn.key, heading0)
-    carry0 = Carry(x_h=scn.x0, u_h=u_h0, x_r=scn.x0, u_r=u_r0, plan=plan0, pstate=pstate,
+    carry0 = Carry(x_h=scn.x0, u_h=u_h0, x_r=scn.x0, x_e=scn.x0, u_r=u_r0, plan=plan0, pstate=pstate,
                    alive=jnp.bool_(True), qp_ok=ok0, t_plant=jnp.zeros((), dt))
     return carry0, ok0
 
@@ -373,6 +374,7 @@ def _step(scn: Scenario, static: Static, carry: Carry, k):
     clearance = jnp.min(jnp.where(scn.mpc.obstacle_active, gap, jnp.inf), initial=jnp.inf)
     w = res.x_robot - (carry.x_r @ A.T) - carry.u_r[:, None] * B
     out = dict(t=t_k, t_plant=carry.t_plant, stance=stance_k, x_hlip=carry.x_h, x_robot=carry.x_r,
+               x_est=carry.x_e,
                u_hlip=carry.u_h, u_robot=carry.u_r, w=w, ref_pos=ref.position,
                ref_vel=ref.velocity, ref_heading=ref.heading, qp_status=new_plan.status,
                qp_iter=new_plan.iterations, obstacle_slack=new_plan.slack,
@@ -388,7 +390,8 @@ def _step(scn: Scenario, static: Static, carry: Carry, k):
         return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, old)
 
     nxt = Carry(x_h=sel(x_h_next, carry.x_h), u_h=sel(u_h_next, carry.u_h),
-                x_r=sel(res.x_robot, carry.x_r), u_r=sel(res.u_robot, carry.u_r),
+                x_r=sel(res.x_robot, carry.x_r), x_e=sel(res.x_est, carry.x_e),
+                u_r=sel(res.u_robot, carry.u_r),
                 plan=sel(new_plan, carry.plan), pstate=sel(pnext, carry.pstate),
                 alive=carry.alive & ~(active & res.failed),
                 qp_ok=carry.qp_ok & (ok | ~active),

@@ -16,6 +16,9 @@ and in :class:`Log` and nowhere else:
     stance: stance foot of the step that starts at SSP⁻_k, 0 left 1 right (S, K) int32
     x_hlip: the H-LIP nominal's state x_H,k per plane [m, m, m/s] (S, K, 2, 3)
     x_robot: the robot's state x_R,k per plane [m, m, m/s] (S, K, 2, 3)
+    x_est: x_R,k as the robot's controller measured and estimated it (sensing noise, IMU bias,
+      the COM velocity filter of a non-ideal Cassie; equal to x_robot on a plant that senses
+      perfectly) [m, m, m/s] (S, K, 2, 3)
     e: tracking error x_R,k − x_H,k [m, m, m/s] (S, K, 2, 3)
     w: S2S residual x_R,k+1 − A x_R,k − B u_R,k (:func:`s2s_residual`); NaN where step k or
       k+1 is not valid [m, m, m/s] (S, K, 2, 3)
@@ -60,6 +63,7 @@ class Log(NamedTuple):
     stance: np.ndarray
     x_hlip: np.ndarray
     x_robot: np.ndarray
+    x_est: np.ndarray
     e: np.ndarray
     w: np.ndarray
     u_hlip: np.ndarray

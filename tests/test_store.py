@@ -83,6 +83,7 @@ def fake_simulate(configs, chunk=None, calls=None):
             log["t_plant"][s, k] = t
             log["stance"][s, k] = k % 2
             log["x_hlip"][s, k], log["x_robot"][s, k] = xh, xr
+            log["x_est"][s, k] = xr
             log["e"][s, k] = xr - xh
             log["u_hlip"][s, k], log["u_robot"][s, k] = uh, ur
             log["ref_pos"][s, k] = [0.3 * t, 0.05 * math.sin(t)]

@@ -82,6 +82,8 @@ def test_replay_matches_the_sweep_and_logs_every_tick(tmp_path, capsys, float64)
     assert np.quantile(np.abs(rate - (0.25 * yd[:-1] + 0.75 * yd[1:])), 0.99) < 5e-4
     assert np.all(np.isfinite(flat["ydd_meas"][:-1])) and np.all(np.isnan(flat["ydd_meas"][-1]))
     assert np.all(np.isfinite(flat["ydd_model"]))
+    # an ideal robot senses perfectly: the step log's estimate is its true state, row for row
+    np.testing.assert_array_equal(log["x_est"][0, :steps], log["x_robot"][0, :steps])
 
 
 def test_measured_accel_and_mismatch_are_exact_on_a_known_motion():

@@ -54,6 +54,8 @@ class StepResult(NamedTuple):
     duration: jax.Array     # plant time the step took, SSP⁻_k → SSP⁻_{k+1} [s]
     leg_gap: jax.Array      # (2,) smallest feet and lower-leg clearances during the step [m]
                             # (inf where the plant has no leg geometry)
+    x_est: jax.Array        # (2, 3) x_robot as the robot's controller measured and estimated it
+                            # at SSP⁻_{k+1} (equal to x_robot where the plant senses perfectly)
 
 
 def push_table(pushes, n_push: int):

@@ -127,7 +127,7 @@ def step(params: Params, state: State, cmd: StepCommand):
     u_next = stepping_law(cmd.u_hlip_next, cmd.gain, x_next, cmd.x_hlip_next) + du
     failed = ~jnp.all(jnp.isfinite(x_next)) | jnp.any(jnp.abs(p2) > params.fall_distance)
     new = State(x=x_next, u=u_next, time=state.time + params.t_dsp + params.t_ssp, key=key)
-    return new, StepResult(x_robot=x_next, u_robot=u_next, failed=failed,
+    return new, StepResult(x_robot=x_next, x_est=x_next, u_robot=u_next, failed=failed,
                            duration=params.t_dsp + params.t_ssp,
                            leg_gap=jnp.full(2, jnp.inf, p.dtype))   # point feet: no legs
 

@@ -234,11 +234,25 @@ def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState
     x_r, st_xy = tick.robot_state(terms, ctx.new_st)
     sw_xy = jnp.where(ctx.sw == 0, terms.ankle[0, :2], terms.ankle[1, :2])
     failed = s.fell | ~jnp.all(jnp.isfinite(x_r))
+    x_est = x_r if ctx.real is None else _estimated_state(ctx, s)
     new = State(d=s.d, warm=s.warm, time=state.time + s.t_step,
                 yaw=outputs.wrap(cmd.heading), land_xy=st_xy + s.u_last + s.sw_offset + du_err,
                 key=key, real=s.real)
-    return new, StepResult(x_robot=x_r, u_robot=sw_xy - st_xy, failed=failed,
+    return new, StepResult(x_robot=x_r, x_est=x_est, u_robot=sw_xy - st_xy, failed=failed,
                            duration=s.t_step, leg_gap=s.gap)
+
+
+def _estimated_state(ctx: tick.Context, s: tick.TickState):
+    """[c, p, v] per plane (2, 3) at SSP⁻_{k+1} as the non-ideal robot's controller has it:
+    the measurement and velocity estimate that the next tick's ``sense`` and ``estimate``
+    stages make from this state (the same noise key and filter state), on the controller's
+    model.  With exact sensing, no filter and no model error this is the true state."""
+    c = cassie()
+    dm, _ = realism.sense(c, ctx.real, s.real, s.d)
+    terms = model.robot_terms(c, dm, ctx.mx)
+    est = realism.estimate_velocity(ctx.real, s.real, terms.com_vel, control.CONTROL_DT)
+    x, _ = tick.robot_state(terms, ctx.new_st)
+    return x.at[:, 2].set(est.v_est[:2])
 
 
 def step_with_log(params: Params, state: State, cmd: StepCommand,
