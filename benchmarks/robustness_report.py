@@ -91,7 +91,8 @@ def _estimate_error(rows) -> str:
     v [m/s] (summary.csv's est_err_p / est_err_v; '–' for results written before them)."""
     if not rows or "est_err_p" not in rows[0]:
         return "–"
-    med = [np.nanmedian([float(r[k] or "nan") for r in rows]) for k in ("est_err_p", "est_err_v")]
+    cell = lambda v: math.nan if v in ("", None) else float(v)
+    med = [np.nanmedian([cell(r[k]) for r in rows]) for k in ("est_err_p", "est_err_v")]
     return f"{med[0]:.4f} / {med[1]:.3f}"
 
 

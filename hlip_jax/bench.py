@@ -3,9 +3,10 @@ Cassie plant through the stepping law and the CLF-QP, one compiled, vmapped call
 of straight-line scenarios (0, 0.2, 0.4, 0.6 m/s, the default gait), against physics-only MJX
 (zero torque, same model, same batch, same number of ticks) in the same process.
 
-Per batch size, device count and CLF-QP loop (``cassie.qp_loop``: the ADMM blocks in a while
+Per batch size, device count, CLF-QP loop (``cassie.qp_loop``: the ADMM blocks in a while
 loop that stops when the batch has converged, or in a loop of static trip count that runs the
-whole budget; the same torques either way): compile + first run [s], timed run [s], simulated
+whole budget; the same torques either way) and physics implementation (``cassie.physics``:
+MJX-JAX or MJX's Warp): compile + first run [s], timed run [s], simulated
 robot-seconds per wall-second, physics steps per second in the loop (2 per 1 kHz control tick,
 only the ticks that simulate), the physics-only rate on one device and the ratio, the fraction
 of robots still walking at the end, and the accelerator's peak memory per robot where the
@@ -19,21 +20,23 @@ from typing import Callable, Sequence
 
 SPEEDS = (0.0, 0.2, 0.4, 0.6)
 
-HEADER = ("| batch | devices | CLF-QP loop | steps | compile + first [s] | run [s] | robot-s / s | "
+HEADER = ("| batch | devices | CLF-QP loop, physics | steps | compile + first [s] | run [s] | robot-s / s | "
           "physics steps/s (closed loop) | physics only, 1 device [steps/s] | ratio | walking at end | "
           "peak memory / robot [MiB] |\n|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
 
 
-def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: str = "while"):
+def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: str = "while",
+            physics: str = "jax"):
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
     of docs/cassie_gait.md (the default gait preset's H-LIP timing and 3-state LQR stepping
-    gain) and the CLF-QP loop ``qp_loop`` (``CassieConfig.qp_loop``)."""
+    gain), the CLF-QP loop ``qp_loop`` and the physics implementation ``physics``
+    (``CassieConfig.qp_loop``, ``CassieConfig.physics``)."""
     from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
     from hlip_jax.plants.cassie import gaits
     W = gaits.preset(gaits.DEFAULT)
-    cassie = CassieConfig(qp_loop=qp_loop)
+    cassie = CassieConfig(qp_loop=qp_loop, physics=physics)
     if qp_max_iter is not None:
-        cassie = CassieConfig(qp_max_iter=qp_max_iter, qp_loop=qp_loop)
+        cassie = CassieConfig(qp_max_iter=qp_max_iter, qp_loop=qp_loop, physics=physics)
     return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
                            hlip=HLIPConfig(z0=W["hlip.z0"], t_ssp=W["hlip.t_ssp"],
                                            t_dsp=W["hlip.t_dsp"]),
@@ -107,9 +110,9 @@ def _admm_run(batch, static, B: int, steps: int, rows: list, emit) -> list[str]:
     import jax
 
     from hlip_jax import rollout
-    full = static.plant_settings.max_iter
-    short = static.plant_settings.check_interval
-    s2 = static._replace(plant_settings=static.plant_settings._replace(max_iter=short))
+    qp_s = static.plant_settings.qp
+    full, short = qp_s.max_iter, qp_s.check_interval
+    s2 = static._replace(plant_settings=static.plant_settings._replace(qp=qp_s._replace(max_iter=short)))
     placed = rollout.place(batch, rollout.scenario_sharding(jax.devices()[:1]))
     try:
         _, t_short, _ = timed_run(placed, s2)
@@ -132,7 +135,7 @@ def _device_runs(batch, static, B: int, steps: int, devices, emit) -> list[tuple
     import numpy as np
 
     from hlip_jax import rollout
-    loop = "while" if static.plant_settings.early_exit else "fixed"
+    loop = _variant(static)
     runs = []
     for n_dev in devices:
         if n_dev > len(jax.devices()) or B % n_dev:
@@ -143,23 +146,31 @@ def _device_runs(batch, static, B: int, steps: int, devices, emit) -> list[tuple
         try:
             t_first, t_run, out = timed_run(placed, static)
         except Exception as exc:  # noqa: BLE001 - e.g. out of accelerator memory
-            emit(f"batch {B} on {n_dev} device(s), {loop} loop failed: {type(exc).__name__}: "
+            emit(f"batch {B} on {n_dev} device(s), {loop} failed: {type(exc).__name__}: "
                  f"{str(exc).splitlines()[0][:200] if str(exc) else ''}")
             continue
         # a partial result survives a later failure or a time limit
-        emit(f"batch {B} on {n_dev} device(s), {loop} loop: compile + first {t_first:.1f} s, "
+        emit(f"batch {B} on {n_dev} device(s), {loop}: compile + first {t_first:.1f} s, "
              f"run {t_run:.2f} s, {B * steps / t_run:,.0f} physics steps/s")
         runs.append((n_dev, t_first, t_run, np.asarray(out["status"]), _peak_bytes(devs)))
     return runs
 
 
+def _variant(static) -> str:
+    """'<CLF-QP loop> loop, <physics> physics' of a build's static settings."""
+    s = static.plant_settings
+    return f"{'while' if s.qp.early_exit else 'fixed'} loop, {s.physics} physics"
+
+
 def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] = (1,),
                 emit: Callable[[str], None] = print, admm: bool = False,
-                qp_loops: Sequence[str] = ("while",)) -> list[dict]:
+                qp_loops: Sequence[str] = ("while",),
+                physics: Sequence[str] = ("jax",)) -> list[dict]:
     """Run the benchmark for every batch size × CLF-QP loop (``qp_loops``, values of
-    ``CassieConfig.qp_loop``) × device count; ``emit`` gets the markdown table (header, then
+    ``CassieConfig.qp_loop``) × physics implementation (``physics``, values of
+    ``CassieConfig.physics``) × device count; ``emit`` gets the markdown table (header, then
     one row per run).  With ``admm`` every batch size is also run (one device, the first
-    loop) with the CLF-QP's ADMM budget cut to one convergence check, and the ADMM
+    variant) with the CLF-QP's ADMM budget cut to one convergence check, and the ADMM
     iterations' share of the tick follows (:func:`admm_share`, second table).  Returns one
     dict per run."""
     import jax
@@ -173,7 +184,8 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
     emit(HEADER)
     rows, admm_rows = [], []
     for B in batches:
-        builds = [rollout.build(configs(B, duration, qp_loop=q)) for q in qp_loops]
+        builds = [rollout.build(configs(B, duration, qp_loop=q, physics=ph))
+                  for ph in physics for q in qp_loops]
         batch, static = builds[0]
         T = float(np.asarray(batch.t_ssp[0] + batch.t_dsp[0]))
         ticks = static.n_steps * int(round(T / control.CONTROL_DT))
@@ -182,9 +194,10 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
                 for r in _device_runs(b_q, st_q, B, steps, devices, emit)]
         prate = _physics_only_rate(B, ticks, steps)
         for st_q, (n_dev, t_first, t_run, status, peak) in runs:
-            loop = "while" if st_q.plant_settings.early_exit else "fixed"
+            loop = _variant(st_q)
             rate = B * steps / t_run
-            row = dict(batch=B, devices=n_dev, qp_loop=loop, steps=static.n_steps,
+            row = dict(batch=B, devices=n_dev, qp_loop="while" if st_q.plant_settings.qp.early_exit
+                       else "fixed", physics=st_q.plant_settings.physics, steps=static.n_steps,
                        compile_first_s=t_first, run_s=t_run,
                        robot_s_per_s=B * static.n_steps * T / t_run, physics_steps_per_s=rate,
                        physics_only_steps_per_s=prate, ratio=rate / prate,

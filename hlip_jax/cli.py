@@ -246,6 +246,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--qp-loop", nargs="+", default=["while"], choices=("while", "fixed"),
                    metavar="LOOP", help="CLF-QP block loops to time, each on the same batch in this "
                    "process (cassie.qp_loop: while, fixed)")
+    b.add_argument("--physics", nargs="+", default=["jax"], choices=("jax", "warp"),
+                   metavar="IMPL", help="physics implementations to time, each on the same batch in "
+                   "this process (cassie.physics: jax, warp; warp needs warp-lang)")
     b.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
     return ap
 
@@ -476,8 +479,14 @@ def cmd_bench(args) -> int:
     import json
 
     from hlip_jax import bench
+    if "warp" in args.physics:
+        from hlip_jax.plants.cassie import warp_physics
+        try:
+            warp_physics.require()
+        except ValueError as err:
+            raise UserError(f"--physics: {err}") from None
     rows = bench.closed_loop(args.batch, args.duration, args.devices, admm=args.admm,
-                             qp_loops=args.qp_loop)
+                             qp_loops=args.qp_loop, physics=args.physics)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return EXIT_OK

@@ -160,6 +160,10 @@ class CassieConfig:
     qp_max_iter: int = spec(150, 25, 5000, "ADMM iteration budget of the CLF-QP per control tick "
                             "(static: one compile per value, equal across a batch)")
     qp_eps: float = spec(1e-4, 1e-8, 1e-1, "ADMM absolute and relative tolerance of the CLF-QP (static)")
+    physics: str = spec("jax", doc="implementation that steps the simulated robot (static): MJX-JAX "
+                        "('jax', every backend) or MJX's Warp implementation ('warp', needs "
+                        "pip install 'hlip_jax[warp]'); the controller is the same code on both",
+                        choices=("jax", "warp"))
     qp_loop: str = spec("while", doc="the CLF-QP's ADMM block loop (static): 'while' stops when every "
                         "robot's QP of the batch has converged; 'fixed' always runs the whole budget in a "
                         "loop of static trip count (the same torques; on an H100 2.2x slower at batch 32, "

@@ -60,7 +60,7 @@ class Static(NamedTuple):
     horizon: int
     settings: qp.Settings
     plant: str
-    plant_settings: Optional[qp.Settings] = None   # the Cassie CLF-QP's ADMM settings
+    plant_settings: Optional[object] = None   # the plant's static settings (Cassie: tick.Settings)
     keep_ticks: bool = False                       # also return the plant's per-tick log
     progress: bool = False                         # report each finished step (progress.py)
 
@@ -195,7 +195,8 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
                            ("plant", c.plant, first.plant),
                            ("cassie.qp_max_iter", c.cassie.qp_max_iter, first.cassie.qp_max_iter),
                            ("cassie.qp_eps", c.cassie.qp_eps, first.cassie.qp_eps),
-                           ("cassie.qp_loop", c.cassie.qp_loop, first.cassie.qp_loop)):
+                           ("cassie.qp_loop", c.cassie.qp_loop, first.cassie.qp_loop),
+                           ("cassie.physics", c.cassie.physics, first.cassie.physics)):
             if a != b:
                 raise ValueError(f"{name} must be the same for every scenario of a batch "
                                  f"(it fixes shapes/compiled settings): got {a!r} and {b!r}")

@@ -18,3 +18,7 @@ def test_bench_configs_carry_the_admm_budget():
     cfgs = bench.configs(4, 0.6, qp_max_iter=25)
     assert [c.cassie.qp_max_iter for c in cfgs] == [25] * 4
     assert bench.configs(1, 0.6)[0].cassie.qp_max_iter == 150
+    # the CLF-QP loop and the physics implementation of a bench variant reach the configs
+    c = bench.configs(2, 0.6, qp_max_iter=25, qp_loop="fixed", physics="warp")
+    assert [(x.cassie.qp_loop, x.cassie.physics, x.cassie.qp_max_iter) for x in c] == [("fixed", "warp", 25)] * 2
+    assert bench.configs(1, 0.6)[0].cassie.physics == "jax"

@@ -201,14 +201,15 @@ def test_make_params_pushes_and_validation():
     assert float(plant.make_params(cfg3, 1).gait.hold_unsolved) == 0.0
     from hlip_jax import rollout
     _, static = rollout.build([cfg3])
-    assert static.plant_settings.max_iter == 50 and static.plant_settings.eps_abs == 1e-4
+    assert static.plant_settings.qp.max_iter == 50 and static.plant_settings.qp.eps_abs == 1e-4
+    assert static.plant_settings.physics == "jax"
     with pytest.raises(ValueError, match="cassie.qp_max_iter"):
         rollout.build([cfg2, cfg3])
     assert rollout.build([ScenarioConfig()])[1].plant_settings is None     # H-LIP plant
     # the CLF-QP's block loop is static and sweep-wide too
-    assert rollout.build([cfg3])[1].plant_settings.early_exit is True
+    assert rollout.build([cfg3])[1].plant_settings.qp.early_exit is True
     cfg4 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_loop="fixed", qp_max_iter=50))
-    assert rollout.build([cfg4])[1].plant_settings.early_exit is False
+    assert rollout.build([cfg4])[1].plant_settings.qp.early_exit is False
     with pytest.raises(ValueError, match="cassie.qp_loop"):
         rollout.build([cfg3, cfg4])
 

@@ -188,15 +188,30 @@ def _step_noise(params: Params, state: State, t_step, dt):
     return key, jnp.asarray(cassie().total_mass, dt) * dv / t_step, du
 
 
-def _context(params: Params, state: State, cmd: StepCommand, f_noise, du_err) -> tick.Context:
+def _physics_model(gait, real, physics: str):
+    """(the controller's MJX-JAX model, the physics' model in MJX-JAX, the physics' model in
+    the implementation ``physics`` steps it with): leaf-spring damping, then the realism
+    edits, applied alike to either implementation's base model."""
+    def edited(base):
+        mx = tick.scenario_model(gait.damping, base)
+        return mx, (mx if real is None else realism.plant_model(cassie(), real, mx))
+
+    mx, mx_plant = edited(None)
+    if physics == "jax":
+        return mx, mx_plant, mx_plant
+    from hlip_jax.plants.cassie import warp_physics
+    return mx, mx_plant, edited(warp_physics.base_model(cassie().mj_model))[1]
+
+
+def _context(params: Params, state: State, cmd: StepCommand, f_noise, du_err,
+             physics: str = "jax") -> tick.Context:
     dt = state.d.qpos.dtype
     gait = jax.tree.map(lambda a: jnp.asarray(a, dt), params.gait)
     ctrl = cassie().ctrl_range
     real = _floats_as(params.real, dt)
-    mx = tick.scenario_model(gait.damping)
-    mx_plant = mx if real is None else realism.plant_model(cassie(), real, mx)
+    mx, mx_plant, mx_physics = _physics_model(gait, real, physics)
     return tick.Context(
-        cmd=cmd, gait=gait, mx=mx, mx_plant=mx_plant, real=real,
+        cmd=cmd, gait=gait, mx=mx, mx_plant=mx_plant, mx_physics=mx_physics, real=real,
         new_st=1 - cmd.stance,
         sw=cmd.stance, yaw_from=state.yaw, dyaw=outputs.wrap(cmd.heading - state.yaw),
         land_xy=state.land_xy, f_noise=f_noise, du_err=du_err, t0=state.time,
@@ -219,12 +234,12 @@ def _first_tick(ctx: tick.Context, state: State) -> tick.TickState:
                           gap=jnp.full(2, jnp.inf, dt), real=state.real)
 
 
-def _prepare(params: Params, state: State, cmd: StepCommand):
+def _prepare(params: Params, state: State, cmd: StepCommand, physics: str = "jax"):
     """(cmd in the state's dtype, next PRNG key, step-noise landing error, tick context)."""
     dt = state.d.qpos.dtype
     cmd = _floats_as(cmd, dt)
     key, f_noise, du_err = _step_noise(params, state, cmd.t_ssp + cmd.t_dsp, dt)
-    return cmd, key, du_err, _context(params, state, cmd, f_noise, du_err)
+    return cmd, key, du_err, _context(params, state, cmd, f_noise, du_err, physics)
 
 
 def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState, key, du_err):
@@ -256,25 +271,27 @@ def _estimated_state(ctx: tick.Context, s: tick.TickState):
 
 
 def step_with_log(params: Params, state: State, cmd: StepCommand,
-                  settings=clfqp.DEFAULT_SETTINGS):
+                  settings: tick.Settings = tick.Settings()):
     """:func:`step` that also returns the per-tick log (:class:`tick.TickLog`, one row per
     tick of the static budget; the rows after the step's end repeat its final state)."""
-    cmd, key, du_err, ctx = _prepare(params, state, cmd)
+    cmd, key, du_err, ctx = _prepare(params, state, cmd, settings.physics)
     s, log = jax.lax.scan(lambda s, _: tick.tick(ctx, s, settings), _first_tick(ctx, state),
                           None, length=params.ticks.shape[0])
     return (*_finish(state, cmd, ctx, s, key, du_err), log)
 
 
-def step(params: Params, state: State, cmd: StepCommand, settings=clfqp.DEFAULT_SETTINGS):
-    """One walking step SSP⁻_k → SSP⁻_{k+1} (module doc); ``settings`` (static) are the
-    CLF-QP's ADMM settings.  Returns (state, StepResult).
+def step(params: Params, state: State, cmd: StepCommand,
+         settings: tick.Settings = tick.Settings()):
+    """One walking step SSP⁻_k → SSP⁻_{k+1} (module doc); ``settings`` (static,
+    :class:`tick.Settings`): the CLF-QP's ADMM settings and the physics' implementation.
+    Returns (state, StepResult).
 
     The ticks run in a ``lax.while_loop`` that ends when the step is over (touchdown, late
     limit or fall: :func:`tick.running` false) or at the static budget.  A tick that does not
     run leaves its state as it is (:func:`tick.advance`), so the result is that of the
     fixed-length scan of :func:`step_with_log`; but a vmapped batch stops at its slowest
     robot's touchdown instead of paying the whole budget (T_DSP + 1.2 T_SSP) every step."""
-    cmd, key, du_err, ctx = _prepare(params, state, cmd)
+    cmd, key, du_err, ctx = _prepare(params, state, cmd, settings.physics)
     budget = params.ticks.shape[0]
 
     def body(carry):
@@ -289,12 +306,17 @@ def step(params: Params, state: State, cmd: StepCommand, settings=clfqp.DEFAULT_
     return _finish(state, cmd, ctx, s, key, du_err)
 
 
-def settings(cfg):
-    """The CLF-QP's static ADMM settings of a scenario (``cassie.qp_max_iter``, ``qp_eps``,
-    ``qp_loop``)."""
-    return clfqp.DEFAULT_SETTINGS._replace(
+def settings(cfg) -> tick.Settings:
+    """The tick's static settings of a scenario: the CLF-QP's ADMM settings
+    (``cassie.qp_max_iter``, ``qp_eps``, ``qp_loop``) and the physics' implementation
+    (``cassie.physics``; "warp" raises ``ValueError`` where warp-lang is missing)."""
+    if cfg.cassie.physics == "warp":
+        from hlip_jax.plants.cassie import warp_physics
+        warp_physics.require()
+    qp_settings = clfqp.DEFAULT_SETTINGS._replace(
         max_iter=cfg.cassie.qp_max_iter, eps_abs=cfg.cassie.qp_eps, eps_rel=cfg.cassie.qp_eps,
         early_exit=cfg.cassie.qp_loop == "while")
+    return tick.Settings(qp=qp_settings, physics=cfg.cassie.physics)
 
 
 PLANT = Plant(name="cassie", make_params=make_params, init=init, step=step,

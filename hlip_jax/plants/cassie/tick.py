@@ -79,6 +79,8 @@ class Context(NamedTuple):
     gait: object             # plant.Gait of the scenario
     mx: mjx.Model            # the controller's MJX model (the scenario's leaf-spring damping)
     mx_plant: mjx.Model      # the physics' model (mx with the scenario's model errors, slope)
+    mx_physics: mjx.Model    # mx_plant in the implementation that steps the physics (MJX-JAX,
+                             # or its Warp twin: :mod:`warp_physics`)
     real: realism.Realism | None  # the scenario's departures from the ideal plant (None: an
                                   # ideal batch, nothing compiled)
     new_st: jax.Array        # stance foot of the coming SSP (0 left, 1 right)
@@ -94,6 +96,14 @@ class Context(NamedTuple):
     push_force: jax.Array    # (P, 2) [N]
     tau_lo: jax.Array        # (nu,) motor torque limits [N m]
     tau_hi: jax.Array
+
+
+class Settings(NamedTuple):
+    """Static settings of the tick (hashable; a change recompiles): the CLF-QP's ADMM
+    settings and the implementation that steps the physics, "jax" (MJX-JAX) or "warp"
+    (MJX's Warp implementation, :mod:`warp_physics`)."""
+    qp: object = clfqp.DEFAULT_SETTINGS
+    physics: str = "jax"
 
 
 class TickState(NamedTuple):
@@ -364,13 +374,14 @@ def actuate(ctx: Context, s: TickState, tau):
     return out, s._replace(real=real)
 
 
-def physics(ctx: Context, s: TickState, tau) -> mjx.Data:
-    """Two MJX steps with ``tau`` and the pelvis force of the active pushes and step noise."""
+def physics(ctx: Context, s: TickState, tau, backend: str = "jax") -> mjx.Data:
+    """Two MJX steps (``backend``: :class:`Settings` ``physics``) with ``tau`` and the pelvis
+    force of the active pushes and step noise."""
     t = ctx.t0 + s.t_step
     on = (t >= ctx.push_start) & (t < ctx.push_end)
     f = jnp.sum(jnp.where(on[:, None], ctx.push_force, 0.0), axis=0) + ctx.f_noise
     return control.physics(cassie(), s.d, tau, jnp.concatenate([f, jnp.zeros(1, f.dtype)]),
-                           mx=ctx.mx_plant)
+                           mx=ctx.mx_physics, backend=backend)
 
 
 def advance(ctx: Context, s: TickState, cts: Contacts, u_des, res, d_new) -> TickState:
@@ -403,7 +414,7 @@ def fell(d: mjx.Data) -> jax.Array:
     return (~finite) | (d.qpos[2] < FALL_HEIGHT) | (tilt > FALL_TILT)
 
 
-def tick(ctx: Context, s: TickState, settings):
+def tick(ctx: Context, s: TickState, settings: Settings):
     """One control tick: the stages of the module doc.  Returns (TickState, TickLog)."""
     gap = proximity(s)
     dm, s = sense(ctx, s)
@@ -413,9 +424,9 @@ def tick(ctx: Context, s: TickState, settings):
     cts = contacts(ctx, s, dm, terms)
     u_des = stepping_target(ctx, s, terms)
     des = desired_outputs(ctx, s, terms, cts, u_des)
-    res, meas, cond = clf_qp(ctx, s, dm, terms, cts, des, settings)
+    res, meas, cond = clf_qp(ctx, s, dm, terms, cts, des, settings.qp)
     tau, s = actuate(ctx, s, res.tau)
-    d_new = physics(ctx, s, tau)
+    d_new = physics(ctx, s, tau, settings.physics)
     e, _ = outputs.errors(meas, des)
     c0 = dynamics.N_LOOP_ROWS
     grf = (cond.lam_tau @ res.tau + cond.lam0)[c0:c0 + dynamics.N_CONTACT_ROWS].reshape(4, 3)
@@ -452,10 +463,11 @@ def cassie() -> model.Cassie:
     return _MODEL
 
 
-def scenario_model(damping) -> mjx.Model:
-    """The MJX model with leaf-spring damping ``damping`` (4,) [N m s/rad] (left shin, left
+def scenario_model(damping, base: mjx.Model | None = None) -> mjx.Model:
+    """The MJX model (``base``, default the walking robot's MJX-JAX model; its Warp twin for
+    the Warp physics) with leaf-spring damping ``damping`` (4,) [N m s/rad] (left shin, left
     heel, right shin, right heel); traced values are fine (one compile per sweep)."""
     c = cassie()
-    mx = c.mjx_model
+    mx = c.mjx_model if base is None else base
     springs = jnp.array(dynamics.spring_dofs(c))
     return mx.replace(dof_damping=mx.dof_damping.at[springs].set(damping))
