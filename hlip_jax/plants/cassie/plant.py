@@ -192,15 +192,17 @@ def _physics_model(gait, real, physics: str):
     """(the controller's MJX-JAX model, the physics' model in MJX-JAX, the physics' model in
     the implementation ``physics`` steps it with): leaf-spring damping, then the realism
     edits, applied alike to either implementation's base model."""
-    def edited(base):
-        mx = tick.scenario_model(gait.damping, base)
+    def edited(base, damping, real):
+        mx = tick.scenario_model(damping, base)
         return mx, (mx if real is None else realism.plant_model(cassie(), real, mx))
 
-    mx, mx_plant = edited(None)
+    mx, mx_plant = edited(None, gait.damping, real)
     if physics == "jax":
         return mx, mx_plant, mx_plant
     from hlip_jax.plants.cassie import warp_physics
-    return mx, mx_plant, edited(warp_physics.base_model(cassie().mj_model))[1]
+    f32 = lambda tree: _floats_as(tree, jnp.float32)          # Warp's model is float32
+    return mx, mx_plant, edited(warp_physics.base_model(cassie().mj_model), f32(gait.damping),
+                                f32(real))[1]
 
 
 def _context(params: Params, state: State, cmd: StepCommand, f_noise, du_err,
