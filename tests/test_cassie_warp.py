@@ -30,6 +30,21 @@ def test_warp_needs_warp_lang_and_is_static(monkeypatch):
         rollout.build([cfg, ScenarioConfig(plant="cassie")])
 
 
+def test_a_warp_sweep_without_warp_lang_is_refused_before_it_runs(tmp_path, capsys, monkeypatch):
+    # the sweep validator refuses it (exit 2, one line naming the field and the allowed value)
+    # before a results directory exists
+    from hlip_jax import cli, plants
+    monkeypatch.setattr(plants, "warp_installed", lambda: False)
+    sw = tmp_path / "w.toml"
+    sw.write_text('name = "w"\n[base]\nplant = "cassie"\nduration = 1.0\n[base.cassie]\n'
+                  'physics = "warp"\n[[paths]]\nshape = "line"\n')
+    for argv in (["show", str(sw)], ["run", str(sw), "--out", str(tmp_path / "r")]):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert "cassie.physics: 'warp' needs the warp-lang package" in err and "'jax'" in err
+    assert not (tmp_path / "r").exists()
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_warp_physics_matches_c_mujoco():

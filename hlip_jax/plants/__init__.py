@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import importlib.util
 from typing import Callable, NamedTuple, Optional
 
 
@@ -74,7 +75,15 @@ def check(cfg) -> Optional[str]:
                 return (f"disturbance.{f}: {getattr(d, f):g} acts on the H-LIP plant only; "
                         f"allowed with plant = 'cassie': {getattr(d0, f):g} (Cassie takes "
                         "disturbance.noise_v, disturbance.step_error and disturbance.pushes)")
+        if cfg.cassie.physics == "warp" and not warp_installed():
+            return ("cassie.physics: 'warp' needs the warp-lang package (pip install "
+                    "'hlip_jax[warp]'); allowed without it: 'jax'")
     return None
+
+
+def warp_installed() -> bool:
+    """Whether the warp-lang package is installed (found, not imported: validation stays light)."""
+    return importlib.util.find_spec("warp") is not None
 
 
 #: disturbance fields the Cassie plant has no counterpart for (its model is the model)
