@@ -34,9 +34,8 @@ def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: st
     from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
     from hlip_jax.plants.cassie import gaits
     W = gaits.preset(gaits.DEFAULT)
-    cassie = CassieConfig(qp_loop=qp_loop, physics=physics)
-    if qp_max_iter is not None:
-        cassie = CassieConfig(qp_max_iter=qp_max_iter, qp_loop=qp_loop, physics=physics)
+    budget = {} if qp_max_iter is None else {"qp_max_iter": qp_max_iter}
+    cassie = CassieConfig(qp_loop=qp_loop, physics=physics, **budget)
     return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
                            hlip=HLIPConfig(z0=W["hlip.z0"], t_ssp=W["hlip.t_ssp"],
                                            t_dsp=W["hlip.t_dsp"]),
@@ -156,10 +155,14 @@ def _device_runs(batch, static, B: int, steps: int, devices, emit) -> list[tuple
     return runs
 
 
+def _loop(static) -> str:
+    """The CLF-QP loop (``CassieConfig.qp_loop``) of a build's static settings."""
+    return "while" if static.plant_settings.qp.early_exit else "fixed"
+
+
 def _variant(static) -> str:
     """'<CLF-QP loop> loop, <physics> physics' of a build's static settings."""
-    s = static.plant_settings
-    return f"{'while' if s.qp.early_exit else 'fixed'} loop, {s.physics} physics"
+    return f"{_loop(static)} loop, {static.plant_settings.physics} physics"
 
 
 def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] = (1,),
@@ -196,8 +199,8 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
         for st_q, (n_dev, t_first, t_run, status, peak) in runs:
             loop = _variant(st_q)
             rate = B * steps / t_run
-            row = dict(batch=B, devices=n_dev, qp_loop="while" if st_q.plant_settings.qp.early_exit
-                       else "fixed", physics=st_q.plant_settings.physics, steps=static.n_steps,
+            row = dict(batch=B, devices=n_dev, qp_loop=_loop(st_q),
+                       physics=st_q.plant_settings.physics, steps=static.n_steps,
                        compile_first_s=t_first, run_s=t_run,
                        robot_s_per_s=B * static.n_steps * T / t_run, physics_steps_per_s=rate,
                        physics_only_steps_per_s=prate, ratio=rate / prate,

@@ -266,7 +266,7 @@ def _estimated_state(ctx: tick.Context, s: tick.TickState):
     model.  With exact sensing, no filter and no model error this is the true state."""
     c = cassie()
     dm, _ = realism.sense(c, ctx.real, s.real, s.d)
-    terms = model.robot_terms(c, dm, ctx.mx)
+    terms = tick.measure(ctx, dm)
     est = realism.estimate_velocity(ctx.real, s.real, terms.com_vel, control.CONTROL_DT)
     x, _ = tick.robot_state(terms, ctx.new_st)
     return x.at[:, 2].set(est.v_est[:2])
