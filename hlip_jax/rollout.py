@@ -244,7 +244,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
     settings = qp.Settings(eps_abs=first.mpc.qp_eps, eps_rel=first.mpc.qp_eps,
                            max_iter=first.mpc.qp_max_iter, check_interval=25,
                            adaptive_rho_interval=50)
-    plant_settings = plants.load(first.plant).settings(first)
+    plant_settings = plants.load(first.plant).settings(first, len(configs))
     return batch, Static(n_steps=K, horizon=horizon, settings=settings, plant=first.plant,
                          plant_settings=plant_settings)
 

@@ -45,6 +45,31 @@ def test_a_warp_sweep_without_warp_lang_is_refused_before_it_runs(tmp_path, caps
     assert not (tmp_path / "r").exists()
 
 
+def _stand_and_reference(ticks: int):
+    """(Cassie, MJX-JAX float32 data at the stand keyframe, C MuJoCo's data after ``ticks``
+    zero-torque control ticks of ``control.SUBSTEPS`` mj_step each)."""
+    c = model.load()
+    m = c.mj_model
+    dm = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, dm, c.index.stand_key)
+    mujoco.mj_forward(m, dm)
+    d0 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32) if jnp.issubdtype(jnp.asarray(a).dtype, jnp.floating)
+                      else a, mjx.put_data(m, dm, impl="jax"))
+    ref = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, ref, c.index.stand_key)
+    for _ in range(ticks * control.SUBSTEPS):
+        mujoco.mj_step(m, ref)
+    return c, d0, ref
+
+
+def _warp_passive(c, d, ticks: int, robots: int):
+    zero_u, zero_f = jnp.zeros(c.index.nu, jnp.float32), jnp.zeros(3, jnp.float32)
+    mw = warp_physics.base_model(c.mj_model)
+    body = lambda d, _: (control.physics(c, d, zero_u, zero_f, mx=mw, backend="warp",
+                                         robots=robots), None)
+    return jax.lax.scan(body, d, None, length=ticks)[0]
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_warp_physics_matches_c_mujoco():
@@ -53,25 +78,32 @@ def test_warp_physics_matches_c_mujoco():
     # (float32 Warp on the CPU; MJX-JAX in float32 is 2.3e-5 / 5.8e-4 off, the same test);
     # 5e-5 and 1e-3 allowed.  The carry stays MJX-JAX data: time and kinematics come back too.
     pytest.importorskip("warp")
-    c = model.load()
-    m = c.mj_model
-    dm = mujoco.MjData(m)
-    mujoco.mj_resetDataKeyframe(m, dm, c.index.stand_key)
-    mujoco.mj_forward(m, dm)
-    d0 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32) if jnp.issubdtype(jnp.asarray(a).dtype, jnp.floating)
-                      else a, mjx.put_data(m, dm, impl="jax"))
-    zero_u, zero_f = jnp.zeros(c.index.nu, jnp.float32), jnp.zeros(3, jnp.float32)
-    mw = warp_physics.base_model(m)
-    body = lambda d, _: (control.physics(c, d, zero_u, zero_f, mx=mw, backend="warp"), None)
-    d = jax.jit(lambda d: jax.lax.scan(body, d, None, length=100)[0])(d0)
-    ref = mujoco.MjData(m)
-    mujoco.mj_resetDataKeyframe(m, ref, c.index.stand_key)
-    for _ in range(100 * control.SUBSTEPS):
-        mujoco.mj_step(m, ref)
+    c, d0, ref = _stand_and_reference(100)
+    d = jax.jit(lambda d: _warp_passive(c, d, 100, 1))(d0)
     assert np.abs(np.asarray(d.qpos) - ref.qpos).max() < 5e-5
     assert np.abs(np.asarray(d.qvel) - ref.qvel).max() < 1e-3
     assert abs(float(d.time) - ref.time) < 1e-6
     assert np.abs(np.asarray(d.geom_xpos) - ref.geom_xpos).max() < 5e-5
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_warp_batch_keeps_every_robots_contacts():
+    # Warp holds one contact buffer for all worlds of a vmapped batch.  A standing Cassie has
+    # 4 contacts and a one-world buffer 48, so a batch of 16 overflows it unless the buffer is
+    # sized for the batch (tick.Settings.robots).  0.05 s of passive standing, 16 copies: with
+    # the buffer sized for 16 every robot stays within 5e-5 of C MuJoCo (as alone, the test
+    # above); sized for one robot, some robots lose their feet's contacts and sink (> 1 mm in
+    # qpos after 0.05 s), which is what the sizing prevents.
+    pytest.importorskip("warp")
+    n, ticks = 16, 50
+    c, d0, ref = _stand_and_reference(ticks)
+    batch = jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + jnp.shape(a)), d0)
+    run = lambda robots: jax.jit(jax.vmap(lambda d: _warp_passive(c, d, ticks, robots)))(batch)
+    err = np.abs(np.asarray(run(n).qpos) - ref.qpos[None]).max(axis=1)
+    assert err.max() < 5e-5, err
+    err_one = np.abs(np.asarray(run(1).qpos) - ref.qpos[None]).max(axis=1)
+    assert err_one.max() > 1e-3, err_one
 
 
 @pytest.mark.slow

@@ -32,7 +32,8 @@ class Plant(NamedTuple):
     step: (params, state, cmd[, settings]) -> (state, StepResult).
     step_with_log: like ``step`` and also the per-tick log, or None (no ticks to log).
     step_span: cfg -> longest walking step of the scenario [s] (static sizes).
-    settings: cfg -> the plant's static solver settings (one compile per value), or None.
+    settings: (cfg, robots) -> the plant's static solver settings for a batch of ``robots``
+      scenarios (one compile per value), or None.
     """
     name: str
     make_params: Callable

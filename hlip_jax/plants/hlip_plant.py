@@ -140,4 +140,4 @@ def step_span(cfg: ScenarioConfig) -> float:
 
 PLANT = Plant(name="hlip", make_params=lambda cfg, n_push, t_step=0.0, non_ideal=False: make_params(cfg, n_push),
               init=init, step=step, step_with_log=None, step_span=step_span,
-              settings=lambda cfg: None)
+              settings=lambda cfg, robots=1: None)

@@ -59,18 +59,19 @@ def control(cassie: model.Cassie, d: mjx.Data, des: outputs.Desired, contact, ta
     return res, meas, terms
 
 
-def physics(cassie: model.Cassie, d: mjx.Data, ctrl, force, mx=None, backend: str = "jax") -> mjx.Data:
+def physics(cassie: model.Cassie, d: mjx.Data, ctrl, force, mx=None, backend: str = "jax",
+            robots: int = 1) -> mjx.Data:
     """``SUBSTEPS`` MJX steps with motor torques ``ctrl`` (nu,) and a world force ``force``
     (3,) [N] on the pelvis COM (``xfrc_applied``); ``mx`` replaces ``cassie.mjx_model``.
     ``backend`` (static): "jax" steps MJX-JAX; "warp" steps MJX's Warp implementation with
     ``mx`` a Warp model (:mod:`hlip_jax.plants.cassie.warp_physics`), ``d`` staying MJX-JAX
-    data."""
+    data, for ``robots`` robots stepped together (static: the vmapped batch size)."""
     mx = cassie.mjx_model if mx is None else mx
     xfrc = jnp.zeros_like(d.xfrc_applied).at[cassie.index.pelvis_body, :3].set(force)
     d = d.replace(ctrl=ctrl, xfrc_applied=xfrc)
     if backend == "warp":
         from hlip_jax.plants.cassie import warp_physics
-        return warp_physics.step(cassie.mj_model, mx, d, SUBSTEPS)
+        return warp_physics.step(cassie.mj_model, mx, d, SUBSTEPS, robots)
     for _ in range(SUBSTEPS):
         d = mjx.step(mx, d)
     return d

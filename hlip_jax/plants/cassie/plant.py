@@ -308,17 +308,18 @@ def step(params: Params, state: State, cmd: StepCommand,
     return _finish(state, cmd, ctx, s, key, du_err)
 
 
-def settings(cfg) -> tick.Settings:
-    """The tick's static settings of a scenario: the CLF-QP's ADMM settings
-    (``cassie.qp_max_iter``, ``qp_eps``, ``qp_loop``) and the physics' implementation
-    (``cassie.physics``; "warp" raises ``ValueError`` where warp-lang is missing)."""
+def settings(cfg, robots: int = 1) -> tick.Settings:
+    """The tick's static settings of a scenario simulated in a batch of ``robots``: the
+    CLF-QP's ADMM settings (``cassie.qp_max_iter``, ``qp_eps``, ``qp_loop``), the physics'
+    implementation (``cassie.physics``; "warp" raises ``ValueError`` where warp-lang is
+    missing) and the batch size (Warp's contact buffer holds the whole batch's contacts)."""
     if cfg.cassie.physics == "warp":
         from hlip_jax.plants.cassie import warp_physics
         warp_physics.require()
     qp_settings = clfqp.DEFAULT_SETTINGS._replace(
         max_iter=cfg.cassie.qp_max_iter, eps_abs=cfg.cassie.qp_eps, eps_rel=cfg.cassie.qp_eps,
         early_exit=cfg.cassie.qp_loop == "while")
-    return tick.Settings(qp=qp_settings, physics=cfg.cassie.physics)
+    return tick.Settings(qp=qp_settings, physics=cfg.cassie.physics, robots=int(robots))
 
 
 PLANT = Plant(name="cassie", make_params=make_params, init=init, step=step,

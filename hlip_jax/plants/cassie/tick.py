@@ -100,10 +100,12 @@ class Context(NamedTuple):
 
 class Settings(NamedTuple):
     """Static settings of the tick (hashable; a change recompiles): the CLF-QP's ADMM
-    settings and the implementation that steps the physics, "jax" (MJX-JAX) or "warp"
-    (MJX's Warp implementation, :mod:`warp_physics`)."""
+    settings, the implementation that steps the physics, "jax" (MJX-JAX) or "warp"
+    (MJX's Warp implementation, :mod:`warp_physics`), and the number of robots stepped
+    together in one vmapped batch (Warp sizes its contact buffer for all of them at once)."""
     qp: object = clfqp.DEFAULT_SETTINGS
     physics: str = "jax"
+    robots: int = 1
 
 
 class TickState(NamedTuple):
@@ -374,14 +376,14 @@ def actuate(ctx: Context, s: TickState, tau):
     return out, s._replace(real=real)
 
 
-def physics(ctx: Context, s: TickState, tau, backend: str = "jax") -> mjx.Data:
-    """Two MJX steps (``backend``: :class:`Settings` ``physics``) with ``tau`` and the pelvis
-    force of the active pushes and step noise."""
+def physics(ctx: Context, s: TickState, tau, backend: str = "jax", robots: int = 1) -> mjx.Data:
+    """Two MJX steps (``backend``, ``robots``: :class:`Settings` ``physics``, ``robots``) with
+    ``tau`` and the pelvis force of the active pushes and step noise."""
     t = ctx.t0 + s.t_step
     on = (t >= ctx.push_start) & (t < ctx.push_end)
     f = jnp.sum(jnp.where(on[:, None], ctx.push_force, 0.0), axis=0) + ctx.f_noise
     return control.physics(cassie(), s.d, tau, jnp.concatenate([f, jnp.zeros(1, f.dtype)]),
-                           mx=ctx.mx_physics, backend=backend)
+                           mx=ctx.mx_physics, backend=backend, robots=robots)
 
 
 def advance(ctx: Context, s: TickState, cts: Contacts, u_des, res, d_new) -> TickState:
@@ -426,7 +428,7 @@ def tick(ctx: Context, s: TickState, settings: Settings):
     des = desired_outputs(ctx, s, terms, cts, u_des)
     res, meas, cond = clf_qp(ctx, s, dm, terms, cts, des, settings.qp)
     tau, s = actuate(ctx, s, res.tau)
-    d_new = physics(ctx, s, tau, settings.physics)
+    d_new = physics(ctx, s, tau, settings.physics, settings.robots)
     e, _ = outputs.errors(meas, des)
     c0 = dynamics.N_LOOP_ROWS
     grf = (cond.lam_tau @ res.tau + cond.lam0)[c0:c0 + dynamics.N_CONTACT_ROWS].reshape(4, 3)

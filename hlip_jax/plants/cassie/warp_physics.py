@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 
+import jax
 import jax.numpy as jnp
 
 from hlip_jax.plants.cassie.mjx_import import mjx
@@ -58,8 +59,11 @@ def base_model(mj_model):
     """The MJX model of ``mj_model`` on the Warp implementation (built once per model).  Its
     overflow warnings are off: the model caps the constraint solver at a few iterations (the
     closed chains need 4, docs), MJX-JAX runs the same cap silently, and Warp would print
-    "solver iterations limit reached" into a sweep's progress output."""
-    mx = mjx.put_model(mj_model, impl="warp")
+    "solver iterations limit reached" into a sweep's progress output.  Built with concrete
+    arrays even when first asked for inside a trace, so the cached model holds no tracer of a
+    finished compile."""
+    with jax.ensure_compile_time_eval():     # concrete arrays, even when first asked inside a trace
+        mx = mjx.put_model(mj_model, impl="warp")
     return mx.replace(opt=mx.opt.replace(_impl=mx.opt._impl.replace(warn_overflow=0)))
 
 
@@ -68,10 +72,21 @@ def shared_fields() -> tuple[str, ...]:
     return tuple(f.name for f in dataclasses.fields(mjx.Data) if not f.name.startswith("_"))
 
 
-def step(mj_model, mx_warp, d, n: int):
+@functools.lru_cache(maxsize=None)
+def contacts_per_robot(mj_model) -> int:
+    """Warp's contact capacity for one robot (its default for a single world)."""
+    return int(mjx.make_data(mj_model, impl="warp")._impl.naconmax)
+
+
+def step(mj_model, mx_warp, d, n: int, robots: int = 1):
     """``n`` Warp physics steps of the MJX-JAX data ``d`` on the Warp model ``mx_warp``;
-    returns ``d`` with every shared field from the Warp result (in ``d``'s dtypes)."""
-    dw = mjx.make_data(mj_model, impl="warp")
+    returns ``d`` with every shared field from the Warp result (in ``d``'s dtypes).
+
+    ``robots`` (static) is the size of the vmapped batch this call runs in: Warp keeps one
+    contact buffer for all worlds of a batch (``naconmax``), so it is sized
+    :func:`contacts_per_robot` × ``robots``; a buffer for one robot would silently drop the
+    contacts of the others (their feet would sink through the floor)."""
+    dw = mjx.make_data(mj_model, impl="warp", naconmax=contacts_per_robot(mj_model) * int(robots))
     dw = dw.replace(**{f: jnp.asarray(getattr(d, f), getattr(dw, f).dtype) for f in STATE_FIELDS})
     for _ in range(n):
         dw = mjx.step(mx_warp, dw)
