@@ -115,6 +115,9 @@ def _sweep_overrides(p: argparse.ArgumentParser) -> None:
                    help="override the simulated time of every scenario [s]")
     p.add_argument("--limit", type=_positive_int, metavar="N",
                    help="keep only the first N scenarios")
+    p.add_argument("--physics", choices=("jax", "warp"),
+                   help="override cassie.physics of every scenario: the implementation that steps "
+                   "the simulated Cassie (warp needs warp-lang: pip install 'hlip_jax[warp]')")
 
 
 def _cache_options(p: argparse.ArgumentParser) -> None:
@@ -267,7 +270,7 @@ def _simulate_override():
 def _load(args):
     from hlip_jax import sweep
     return sweep.load_sweep(resolve_sweep(args.sweep), plant=args.plant,
-                            duration=args.duration, limit=args.limit)
+                            duration=args.duration, limit=args.limit, physics=args.physics)
 
 
 def cmd_run(args) -> int:

@@ -633,13 +633,14 @@ def _value_label(v) -> str:
 
 def parse_sweep(text: str, *, source: str = "<string>", plant: str | None = None,
                 duration: float | None = None, limit: int | None = None,
-                default_name: str = "sweep") -> Sweep:
+                default_name: str = "sweep", physics: str | None = None) -> Sweep:
     """Parse, validate and expand a sweep file's text.
 
     Args:
       text: TOML text.
       source: file name for messages.
-      plant, duration: command-line overrides applied to every scenario (validated like the file).
+      plant, duration, physics: command-line overrides applied to every scenario (validated
+        like the file; ``physics`` sets ``cassie.physics``).
       limit: keep only the first ``limit`` scenarios (≥ 1).
       default_name: sweep name when the file sets none.
     Raises:
@@ -649,7 +650,7 @@ def parse_sweep(text: str, *, source: str = "<string>", plant: str | None = None
     if "extends" in doc:
         raise SweepError(f"{source}: extends: only a sweep file can extend another (the name "
                          "is resolved next to the file); use hlip-sweep with the file's path")
-    return _expand_doc(doc, text, source, plant, duration, limit, default_name)
+    return _expand_doc(doc, text, source, (plant, duration, physics), limit, default_name)
 
 
 def _loads(text: str, source: str) -> dict:
@@ -676,13 +677,13 @@ def _depth(doc, limit: int) -> int:
     return deepest
 
 
-def _expand_doc(doc, text, source, plant, duration, limit, default_name) -> Sweep:
+def _expand_doc(doc, text, source, overrides, limit, default_name) -> Sweep:
     for key, value in doc.items():
         if isinstance(value, (dict, list)) and _depth(value, MAX_DEPTH - 1) >= MAX_DEPTH:
             raise SweepError(f"{source}: {key}: tables or arrays nested more than {MAX_DEPTH} "
                              f"levels deep; allowed: at most {MAX_DEPTH} levels")
     try:
-        return _expand(doc, text, source, plant, duration, limit, default_name)
+        return _expand(doc, text, source, overrides, limit, default_name)
     except SweepError as err:
         msg = str(err)
         raise SweepError(msg if msg.startswith(source) else f"{source}: {msg}") from None
@@ -733,7 +734,7 @@ class _PathEntry:
     cfg: C.ScenarioConfig
 
 
-def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
+def _expand(doc, text, source, overrides, limit, default_name) -> Sweep:
     for k in doc:
         if k not in TOP_KEYS:
             raise _unknown_key(k, TOP_KEYS, "")
@@ -742,7 +743,7 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
     desc = doc.get("description", "")
     if not isinstance(desc, str):
         raise SweepError(f"description: expected a string, got {_tname(desc)}")
-    base, base_path = _base_tables(doc, plant, duration)
+    base, base_path = _base_tables(doc, *overrides)
     entries = _parse_paths(doc, base, base_path)
     axes = _parse_axes(doc.get("grid"))
     n_grid = math.prod(len(a) for a in axes) if axes else 1
@@ -771,7 +772,7 @@ def _expand(doc, text, source, plant, duration, limit, default_name) -> Sweep:
                  n_scenarios=stop, expand=expand)
 
 
-def _base_tables(doc: dict, plant, duration) -> tuple[dict, dict]:
+def _base_tables(doc: dict, plant, duration, physics=None) -> tuple[dict, dict]:
     """([base] with the command-line overrides, [base.path]), the base validated alone so its
     errors name base.* fields."""
     base = doc.get("base", {})
@@ -785,6 +786,9 @@ def _base_tables(doc: dict, plant, duration) -> tuple[dict, dict]:
         base["plant"] = plant
     if duration is not None:
         base["duration"] = duration
+    if physics is not None:
+        cassie = base.get("cassie", {})
+        base["cassie"] = {**(cassie if isinstance(cassie, dict) else {}), "physics": physics}
     _build(C.ScenarioConfig, base, "base", exclude=BASE_EXCLUDE)
     return base, base_path
 
@@ -981,7 +985,7 @@ MAX_EXTENDS = 8   # longest chain of sweep files extending one another
 
 
 def load_sweep(path, *, plant: str | None = None, duration: float | None = None,
-               limit: int | None = None) -> Sweep:
+               limit: int | None = None, physics: str | None = None) -> Sweep:
     """Read and expand a sweep file (see :func:`parse_sweep` for the keyword overrides).
 
     A file may start from another with ``extends = "paper.toml"`` (a path relative to the file;
@@ -993,7 +997,7 @@ def load_sweep(path, *, plant: str | None = None, duration: float | None = None,
     :data:`MAX_EXTENDS` files, no cycles.  The manifest keeps every file's text."""
     p = Path(path)
     doc, text = _resolve_extends(p, str(path), ())
-    return _expand_doc(doc, text, str(path), plant, duration, limit, p.stem)
+    return _expand_doc(doc, text, str(path), (plant, duration, physics), limit, p.stem)
 
 
 def _read_sweep_file(p: Path, source: str) -> str:

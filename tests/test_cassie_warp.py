@@ -126,3 +126,23 @@ def test_closed_loop_on_warp_walks_like_on_jax():
     c_a, c_b = a.x_robot[0, :n, :, 0], b.x_robot[0, :n, :, 0]
     assert np.abs(c_a[:3] - c_b[:3]).max() < 5e-3
     assert np.abs(c_a - c_b).max() < 0.15
+
+
+def test_physics_override_from_the_command_line(tmp_path, capsys, monkeypatch):
+    # --physics sets cassie.physics of every scenario (run and show), validated like the file:
+    # without warp-lang a Warp run is refused naming the field; an unknown value is exit 2
+    from hlip_jax import cli, plants, sweep
+    text = ('name = "o"\n[base]\nplant = "cassie"\nduration = 1.0\n[[paths]]\nshape = "line"\n'
+            '[[paths]]\nname = "c"\nshape = "circle"\n[base.cassie]\nphysics = "jax"\n')
+    sw = sweep.parse_sweep(text, physics="warp")
+    assert {s.cassie.physics for s in sw.scenarios} == {"warp"}
+    assert {s.cassie.physics for s in sweep.parse_sweep(text).scenarios} == {"jax"}
+    f = tmp_path / "o.toml"
+    f.write_text(text)
+    monkeypatch.setattr(plants, "warp_installed", lambda: False)
+    assert cli.main(["run", str(f), "--physics", "warp", "--out", str(tmp_path / "r")]) == 2
+    assert "cassie.physics: 'warp' needs the warp-lang package" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["show", str(f), "--physics", "cuda"])
+    assert exc.value.code == 2 and "--physics: invalid choice: 'cuda'" in capsys.readouterr().err
