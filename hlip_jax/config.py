@@ -194,9 +194,10 @@ class RealismConfig:
     imu_bias_pitch: float = spec(0.0, -10.0, 10.0, "constant bias of the measured pelvis pitch", "deg")
     velocity_filter: float = spec(0.0, 0.0, 0.5, "time constant of the low-pass on the COM velocity "
                                   "the stepping law uses (0: unfiltered)", "s")
-    touchdown: str = spec("contact", doc="touchdown detection: exact contact distance ('contact') "
-                          "or the measured heel-spring deflection ('spring')",
-                          choices=("contact", "spring"))
+    touchdown: str = spec("contact", doc="touchdown detection: exact contact distance ('contact'), "
+                          "the measured heel-spring deflection ('spring'), or the measured leg "
+                          "kinematics: a sphere within the gap of the lowest one ('kinematic')",
+                          choices=("contact", "spring", "kinematic"))
     spring_threshold: float = spec(1.5, 0.05, 20.0, "heel-spring compression that counts as ground "
                                    "contact (touchdown = 'spring')", "deg")
     mass_scale: float = spec(1.0, 0.5, 2.0, "factor on every link's mass and inertia")

@@ -174,6 +174,24 @@ def test_spring_touchdown_reads_the_heel_springs(cassie):
         np.testing.assert_array_equal(got, want)
 
 
+def test_kinematic_touchdown_reads_heights_relative_to_the_lowest_sphere(cassie):
+    """With touchdown = 'kinematic' a foot (both its sites) touches when its lower sphere's
+    measured height is within the gap of the lowest sphere's, whatever the ground's height and
+    the true state: a foot whose toe is 3 mm above the stance foot touches at a 4 mm gap (its
+    heel 6 mm up, as a 3° pitch error makes it, included), 5 mm does not; lifting every sphere
+    by 0.3 m changes nothing (the oracle would say none touches)."""
+    real = _real(touchdown="kinematic")
+    d = mjx.put_data(cassie.mj_model, _stand_data(cassie, np.random.default_rng(5)))
+    for base in (0.0, 0.3):
+        for right, want in (([0.003, 0.009], True), ([0.005, 0.009], False), ([0.009, 0.0039], True)):
+            z = base + jnp.array([0.0, 0.0005] + right)          # left toe, heel; right toe, heel
+            sites = jnp.zeros((4, 3)).at[:, 2].set(z)
+            got = realism.touching(cassie, real, d, d, sites, 0.004)
+            np.testing.assert_array_equal(got, [True, True, want, want])
+    oracle = realism.touching(cassie, _real(), d, d, sites, 0.004)
+    np.testing.assert_array_equal(oracle, [False] * 4)
+
+
 @pytest.mark.timeout(240)
 def test_plant_model_matches_c_mujoco_with_the_same_edits(cassie):
     """qacc_smooth (unconstrained accelerations: masses, inertias, COM, springs, gravity) of

@@ -26,7 +26,11 @@ physics' last kinematics, half a physics step old) — or the leaf springs: a fo
 its heel spring, measured, is compressed beyond a threshold, the way the hardware controllers
 detect contact (walking at 0.5 m/s in the ideal simulation the loaded heel spring sits at −2.2°
 (median; 5 % of stance ticks beyond −3.9°, 95 % beyond −0.5°) and a swinging one within ±1°
-99 % of the time: the default 1.5° separates them).
+99 % of the time: the default 1.5° separates them) — or the measured leg kinematics: a foot
+touches when its lower sphere is within the gap of the lowest of the four spheres, all from the
+measured state (encoders and IMU, their noise and bias included).  The kinematic detector needs no ground height: the
+stance foot stands for the ground, as on hardware that reads contact from leg kinematics; on
+a slope it fires late uphill and early downhill.
 
 **Actuation** (:func:`actuate`).  A control update every n ticks (torques held in between,
 zero-order hold), a latency of L ticks between measurement and torque, a first-order motor lag
@@ -83,6 +87,7 @@ class Realism(NamedTuple):
     imu_bias: jax.Array         # (2,) roll, pitch bias b [rad]
     velocity_filter: jax.Array  # τ_v [s], 0 = no filter
     spring_touchdown: jax.Array  # bool: detect touchdown from the heel springs
+    kinematic_touchdown: jax.Array  # bool: detect touchdown from the measured leg kinematics
     spring_threshold: jax.Array  # heel-spring compression that counts as contact [rad]
     mass_scale: jax.Array       # s_m
     pelvis_com: jax.Array       # (2,) Δx, Δy of the pelvis COM in the pelvis frame [m]
@@ -115,6 +120,7 @@ def make(cfg) -> Realism:
         imu_rate_noise=f(rad(cfg.imu_rate_noise)),
         imu_bias=rad(np.array([cfg.imu_bias_roll, cfg.imu_bias_pitch], float)),
         velocity_filter=f(cfg.velocity_filter), spring_touchdown=np.bool_(cfg.touchdown == "spring"),
+        kinematic_touchdown=np.bool_(cfg.touchdown == "kinematic"),
         spring_threshold=f(rad(cfg.spring_threshold)), mass_scale=f(cfg.mass_scale),
         pelvis_com=np.array([cfg.pelvis_com_x, cfg.pelvis_com_y], float),
         stiffness_scale=f(cfg.spring_stiffness_scale), friction=f(cfg.friction),
@@ -206,12 +212,19 @@ def estimate_velocity(real: Realism, rs: RealState, com_vel, dt_c: float) -> Rea
 def touching(c: model.Cassie, real: Realism, d_true, d_meas, site_pos, gap: float):
     """(4,) bool per contact site (:data:`model.CONTACT_SITES`): the oracle (sphere within
     ``gap`` [m] of the ground; ``site_pos`` where the measurement is exact, else the true
-    sites of ``d_true``'s last kinematics) or the heel springs of ``d_meas`` (both sites of a
-    foot whose spring deflects beyond the threshold)."""
+    sites of ``d_true``'s last kinematics), the heel springs of ``d_meas`` (both sites of a
+    foot whose spring deflects beyond the threshold), or the measured kinematics: both sites
+    of a foot whose lower sphere is within ``gap`` of the lowest sphere in the measured
+    ``site_pos`` (the stance foot stands for the ground, so the robot needs no ground height,
+    and sensing errors and slopes move the detection; per foot, because a 3° pitch error
+    already puts a flat foot's toe and heel 6 mm apart in the measurement)."""
     sites = jnp.where(real.noisy, d_true.site_xpos[np.asarray(c.index.contact_sites)], site_pos)
     oracle = sites[:, 2] - model.FOOT_SPHERE_RADIUS < gap
     heel = -d_meas.qpos[layout(c).heel_qpos] > real.spring_threshold    # compressed by the load
-    return jnp.where(real.spring_touchdown, jnp.repeat(heel, 2), oracle)
+    foot_low = jnp.min(site_pos[:, 2].reshape(2, 2), axis=1)                # (2,) per foot
+    kinematic = jnp.repeat(foot_low - jnp.min(foot_low) < gap, 2)
+    return jnp.where(real.spring_touchdown, jnp.repeat(heel, 2),
+                     jnp.where(real.kinematic_touchdown, kinematic, oracle))
 
 
 def motor_limit(real: Realism, tau, omega, tau_max, no_load):
