@@ -56,16 +56,21 @@ def _peak_bytes(devices):
     return sum(s["peak_bytes_in_use"] for s in stats)
 
 
-def timed_run(batch, static):
+def timed_run(batch, static, emit: Callable[[str], None] | None = None, label: str = ""):
     """Run the compiled closed loop twice on ``batch`` (placed as wanted): the first call
-    compiles, the second is timed.  Returns (compile + first run [s], run [s], output)."""
+    compiles, the second is timed.  Returns (compile + first run [s], run [s], output).
+    ``emit`` (optional) hears when each call starts, so a run cut off by a time limit shows
+    whether the compile or the timed run was under way."""
     import jax
 
     from hlip_jax import rollout
+    say = emit or (lambda _: None)
     with jax.default_matmul_precision("highest"):
+        say(f"{label}: compile + first run started")
         t0 = time.perf_counter()
         jax.block_until_ready(rollout.run(batch, static))
         t1 = time.perf_counter()
+        say(f"{label}: compile + first run took {t1 - t0:.1f} s; timed run started")
         out = jax.block_until_ready(rollout.run(batch, static))
     return t1 - t0, time.perf_counter() - t1, out
 
@@ -143,7 +148,8 @@ def _device_runs(batch, static, B: int, steps: int, devices, emit) -> list[tuple
         devs = jax.devices()[:n_dev]
         placed = rollout.place(batch, rollout.scenario_sharding(devs))
         try:
-            t_first, t_run, out = timed_run(placed, static)
+            t_first, t_run, out = timed_run(placed, static, emit,
+                                            f"batch {B} on {n_dev} device(s), {loop}")
         except Exception as exc:  # noqa: BLE001 - e.g. out of accelerator memory
             emit(f"batch {B} on {n_dev} device(s), {loop} failed: {type(exc).__name__}: "
                  f"{str(exc).splitlines()[0][:200] if str(exc) else ''}")
@@ -165,21 +171,48 @@ def _variant(static) -> str:
     return f"{_loop(static)} loop, {static.plant_settings.physics} physics"
 
 
+def _row(static, B: int, T: float, steps: int, prate: float, n_dev: int, t_first: float,
+         t_run: float, status, peak) -> dict:
+    """One result row of the closed-loop benchmark (a run of ``_device_runs``)."""
+    import numpy as np
+
+    from hlip_jax import steplog
+    rate = B * steps / t_run
+    return dict(batch=B, devices=n_dev, qp_loop=_loop(static),
+                physics=static.plant_settings.physics, steps=static.n_steps,
+                compile_first_s=t_first, run_s=t_run,
+                robot_s_per_s=B * static.n_steps * T / t_run, physics_steps_per_s=rate,
+                physics_only_steps_per_s=prate, ratio=rate / prate,
+                walking=float(np.mean(status == steplog.STATUS_OK)),
+                peak_mib_per_robot=None if peak is None else peak / B / 2**20)
+
+
+def _table_row(r: dict, variant: str) -> str:
+    """The markdown row of :data:`HEADER` for result row ``r``."""
+    mem = "–" if r["peak_mib_per_robot"] is None else f"{r['peak_mib_per_robot']:.2f}"
+    return (f"| {r['batch']} | {r['devices']} | {variant} | {r['steps']} | "
+            f"{r['compile_first_s']:.1f} | {r['run_s']:.2f} | {r['robot_s_per_s']:,.1f} | "
+            f"{r['physics_steps_per_s']:,.0f} | {r['physics_only_steps_per_s']:,.0f} | "
+            f"{r['ratio']:.2f} | {r['walking']:.3f} | {mem} |")
+
+
 def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] = (1,),
                 emit: Callable[[str], None] = print, admm: bool = False,
                 qp_loops: Sequence[str] = ("while",),
-                physics: Sequence[str] = ("jax",)) -> list[dict]:
+                physics: Sequence[str] = ("jax",),
+                on_row: Callable[[list], None] | None = None) -> list[dict]:
     """Run the benchmark for every batch size × CLF-QP loop (``qp_loops``, values of
     ``CassieConfig.qp_loop``) × physics implementation (``physics``, values of
     ``CassieConfig.physics``) × device count; ``emit`` gets the markdown table (header, then
     one row per run).  With ``admm`` every batch size is also run (one device, the first
     variant) with the CLF-QP's ADMM budget cut to one convergence check, and the ADMM
     iterations' share of the tick follows (:func:`admm_share`, second table).  Returns one
-    dict per run."""
+    dict per run; ``on_row`` (optional) gets the rows so far after each one, so a run cut off
+    by a time limit keeps what it measured."""
     import jax
     import numpy as np
 
-    from hlip_jax import rollout, steplog
+    from hlip_jax import rollout
     from hlip_jax.plants.cassie import control
 
     emit(f"backend {jax.default_backend()} device {jax.devices()[0].device_kind}; "
@@ -193,24 +226,14 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
         T = float(np.asarray(batch.t_ssp[0] + batch.t_dsp[0]))
         ticks = static.n_steps * int(round(T / control.CONTROL_DT))
         steps = ticks * control.SUBSTEPS
-        runs = [(st_q, r) for b_q, st_q in builds
-                for r in _device_runs(b_q, st_q, B, steps, devices, emit)]
-        prate = _physics_only_rate(B, ticks, steps)
-        for st_q, (n_dev, t_first, t_run, status, peak) in runs:
-            loop = _variant(st_q)
-            rate = B * steps / t_run
-            row = dict(batch=B, devices=n_dev, qp_loop=_loop(st_q),
-                       physics=st_q.plant_settings.physics, steps=static.n_steps,
-                       compile_first_s=t_first, run_s=t_run,
-                       robot_s_per_s=B * static.n_steps * T / t_run, physics_steps_per_s=rate,
-                       physics_only_steps_per_s=prate, ratio=rate / prate,
-                       walking=float(np.mean(status == steplog.STATUS_OK)),
-                       peak_mib_per_robot=None if peak is None else peak / B / 2**20)
-            rows.append(row)
-            mem = "–" if peak is None else f"{row['peak_mib_per_robot']:.2f}"
-            emit(f"| {B} | {n_dev} | {loop} | {static.n_steps} | {t_first:.1f} | {t_run:.2f} | "
-                 f"{row['robot_s_per_s']:,.1f} | {rate:,.0f} | {prate:,.0f} | {row['ratio']:.2f} | "
-                 f"{row['walking']:.3f} | {mem} |")
+        prate = _physics_only_rate(B, ticks, steps)        # first: a cut-off run keeps it
+        emit(f"batch {B}: physics only, 1 device: {prate:,.0f} physics steps/s")
+        for b_q, st_q in builds:
+            for run in _device_runs(b_q, st_q, B, steps, devices, emit):
+                rows.append(_row(st_q, B, T, steps, prate, *run))
+                if on_row is not None:
+                    on_row(rows)
+                emit(_table_row(rows[-1], _variant(st_q)))
         if admm:
             admm_rows += _admm_run(batch, static, B, steps, rows, emit)
     if admm_rows:

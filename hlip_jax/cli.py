@@ -488,10 +488,12 @@ def cmd_bench(args) -> int:
             warp_physics.require()
         except ValueError as err:
             raise UserError(f"--physics: {err}") from None
-    rows = bench.closed_loop(args.batch, args.duration, args.devices, admm=args.admm,
-                             qp_loops=args.qp_loop, physics=args.physics)
-    if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+    def write(rows):
+        if args.json:
+            Path(args.json).write_text(json.dumps(rows, indent=1))
+
+    write(bench.closed_loop(args.batch, args.duration, args.devices, admm=args.admm,
+                            qp_loops=args.qp_loop, physics=args.physics, on_row=write))
     return EXIT_OK
 
 

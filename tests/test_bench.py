@@ -22,3 +22,38 @@ def test_bench_configs_carry_the_admm_budget():
     c = bench.configs(2, 0.6, qp_max_iter=25, qp_loop="fixed", physics="warp")
     assert [(x.cassie.qp_loop, x.cassie.physics, x.cassie.qp_max_iter) for x in c] == [("fixed", "warp", 25)] * 2
     assert bench.configs(1, 0.6)[0].cassie.physics == "jax"
+
+
+def test_a_cut_off_bench_keeps_what_it_measured(monkeypatch, tmp_path):
+    # the timed run says when the compile and the timed run start (a run killed by a time
+    # limit shows which was under way), and --json is rewritten after every row, so the rows
+    # measured before a limit survive it.  The simulation is faked; the tables are real.
+    import json
+
+    import numpy as np
+
+    from hlip_jax import cli, rollout
+
+    heard = []
+    monkeypatch.setattr(rollout, "run", lambda batch, static: {"status": np.zeros(2)})
+    bench.timed_run(None, None, heard.append, "b")
+    assert heard[0] == "b: compile + first run started"
+    assert heard[1].startswith("b: compile + first run took ") and heard[1].endswith("timed run started")
+
+    out = tmp_path / "rows.json"
+    seen = []
+
+    def device_runs(batch, static, B, steps, devices, emit):
+        if seen:                        # the second variant: the row of the first is on disk
+            assert [r["physics"] for r in json.loads(out.read_text())] == ["jax"]
+        seen.append(static.plant_settings.physics)
+        return [(1, 1.0, 2.0, np.zeros(B, int), None)]
+
+    monkeypatch.setattr(bench, "_device_runs", device_runs)
+    monkeypatch.setattr(bench, "_physics_only_rate", lambda B, ticks, steps: 1000.0)
+    monkeypatch.setattr(bench, "_peak_bytes", lambda devices: None)
+    monkeypatch.setattr("hlip_jax.plants.cassie.warp_physics.require", lambda: None)
+    assert cli.main(["bench", "--batch", "2", "--duration", "0.3", "--physics", "jax", "warp",
+                     "--json", str(out)]) == 0
+    assert seen == ["jax", "warp"]
+    assert [r["physics"] for r in json.loads(out.read_text())] == ["jax", "warp"]
