@@ -48,7 +48,9 @@ class Progress:
         self.stream.write(f"[{self.label}] {text}\n")
         self.stream.flush()
 
-    def update(self, done: int, note: str = "") -> None:
+    def update(self, done: int, note: str = "", eta: float | None = None) -> None:
+        """Progress after ``done`` scenarios; ``eta`` [s] (from inside a running chunk, see
+        :func:`_step_news`) stands in for the ETA until finished chunks give a rate."""
         if not self.enabled:
             return
         if self.done0 is None:
@@ -59,6 +61,8 @@ class Progress:
             rate = (done - self.done0) / dt if dt > 0 else 0.0
             rate_s = f"{rate:.2f}/s" if rate else "-"
             eta_s = f"{(self.total - done) / rate:.0f}s" if rate > 0 else "-"
+        if eta is not None and eta_s == "-":
+            eta_s = f"{eta:.0f}s"
         pct = 100.0 * done / max(self.total, 1)
         msg = (f"[{self.label}] {done}/{self.total} scenarios ({pct:3.0f}%)  rate {rate_s}  "
                f"ETA {eta_s}{'  ' + note if note else ''}")
@@ -254,16 +258,32 @@ def on_host():
         yield
 
 
-def _step_news(bar, done: int, chunk: int, n_chunks: int, every: float = 5.0):
-    """A :mod:`hlip_jax.progress` listener: the walking step reached inside the running chunk,
-    on the progress line at most every ``every`` seconds."""
+def _step_news(bar, done: int, chunk: int, n_chunks: int, duration: float = 0.0,
+               later: int | None = None, every: float = 5.0):
+    """A :mod:`hlip_jax.progress` listener: the walking step reached inside the running chunk
+    and about how much of the scenarios' ``duration`` [s] that simulates, on the progress line
+    at most every ``every`` seconds.  From the second news on it also gives an ETA that leaves
+    the compile out: with r the steps per second since the first news (which arrives after the
+    compile), the rest of this chunk takes (n − k)/r and each of the ``later`` chunks still
+    to run after it (default: every later chunk) n/r (their programs are compiled already)."""
+    later = n_chunks - chunk - 1 if later is None else later
     last = [-math.inf]
+    first: list = []
 
     def hear(k: int, n_steps: int) -> None:
         now = time.monotonic()
-        if now - last[0] >= every or k == n_steps:
-            last[0] = now
-            bar.update(done, f"chunk {chunk + 1}/{n_chunks}: step {k}/{n_steps}")
+        if not first:
+            first.extend((now, k))
+        if now - last[0] < every and k != n_steps:
+            return
+        last[0] = now
+        dt, dk = now - first[0], k - first[1]
+        eta = None
+        if dt > 0 and dk > 0:
+            per_step = dt / dk
+            eta = per_step * ((n_steps - k) + n_steps * later)
+        sim = f" (≈ {duration * k / n_steps:.1f} of {duration:g} s simulated)" if duration > 0 else ""
+        bar.update(done, f"chunk {chunk + 1}/{n_chunks}: step {k}/{n_steps}{sim}", eta=eta)
     return hear
 
 
@@ -280,7 +300,9 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
             break
         chunk_cfgs = configs[a:b] + [configs[b - 1]] * (batch - (b - a))
         try:
-            news = (progress.listening(_step_news(bar, done, i, len(ranges))) if bar.enabled
+            span = max(c.duration for c in chunk_cfgs)
+            later = sum(j not in good for j in range(i + 1, len(ranges)))
+            news = (progress.listening(_step_news(bar, done, i, len(ranges), span, later)) if bar.enabled
                     else contextlib.nullcontext())      # --quiet: no callback compiled in
             with news:
                 log = sim(chunk_cfgs)

@@ -377,3 +377,40 @@ def test_coverage_in_the_heading_frame_survives_turning_round():
     mw = metrics.scenario_metrics(world, 0)
     assert m["cov_x_heldout"] >= 0.9 and m["cov_y_heldout"] >= 0.9
     assert mw["cov_x_heldout"] < 0.2
+
+
+def test_in_chunk_news_gives_simulated_time_and_an_eta_without_the_compile(monkeypatch):
+    # _step_news on a fake clock: the first news (after the compile) only sets the reference;
+    # later news give ETA = seconds per step × (steps left in this chunk + n × later chunks),
+    # and the share of the scenarios' duration simulated so far; news closer than `every`
+    # seconds are dropped except the chunk's last step
+    heard = []
+
+    class Bar:
+        def update(self, done, note="", eta=None):
+            heard.append((done, note, eta))
+
+    clock = [100.0]
+    monkeypatch.setattr(runner.time, "monotonic", lambda: clock[0])
+    hear = runner._step_news(Bar(), 16, 0, 3, duration=30.0, later=1, every=5.0)
+    hear(1, 10)                                   # after a long compile: reference only
+    assert heard[-1] == (16, "chunk 1/3: step 1/10 (≈ 3.0 of 30 s simulated)", None)
+    clock[0] = 102.0
+    hear(2, 10)                                   # within `every`: dropped
+    assert len(heard) == 1
+    clock[0] = 106.0
+    hear(4, 10)                                   # 2 s per step: (6 + 10 · 1) steps left
+    assert heard[-1] == (16, "chunk 1/3: step 4/10 (≈ 12.0 of 30 s simulated)", 32.0)
+    clock[0] = 107.0
+    hear(10, 10)                                  # the last step is always told
+    assert heard[-1][2] == pytest.approx(7.0 / 9.0 * 10)
+
+
+def test_progress_line_takes_the_in_chunk_eta_until_chunks_give_a_rate():
+    import io
+    out = io.StringIO()
+    bar = runner.Progress(10, "s", stream=out)
+    bar.update(0, "chunk 1/2: step 3/10", eta=42.0)
+    assert "ETA 42s" in out.getvalue().splitlines()[-1]
+    bar.update(0, "chunk 1/2: step 4/10")
+    assert "ETA -" in out.getvalue().splitlines()[-1]
