@@ -264,14 +264,18 @@ def test_the_step_log_keeps_the_estimate_beside_the_truth():
     #    and the controller's MJX models are equal without model errors);
     #  - a 30 ms COM-velocity filter only: c and p exact (1e-9), v off — a low-pass filter of
     #    a changing velocity lags it;
-    #  - encoder and IMU noise: p off by about the noise's effect (nonzero, below 5 cm).
+    #  - encoder and IMU noise: p off by about the noise's effect (nonzero, below 5 cm);
+    #  - touchdown from the measured kinematics, sensing exact, beside an ideal robot in the
+    #    same batch: on flat ground the stance foot is the ground up to its sphere's penetration
+    #    (under a millimetre), so the two detect the same touchdowns to a tick or two and walk
+    #    alike (compared below).
     from hlip_jax import metrics, rollout
     from hlip_jax.config import PathConfig
     base = ScenarioConfig(plant="cassie", duration=1.2,
                           path=PathConfig(shape="line", params=dict(peak_speed=0.3, length=2.0)))
     cfgs = [dataclasses.replace(base, realism=RealismConfig(**kw)) for kw in (
         dict(motor_lag=0.002), dict(velocity_filter=0.03),
-        dict(joint_noise=0.005, imu_noise=0.005))]
+        dict(joint_noise=0.005, imu_noise=0.005), dict(touchdown="kinematic"), dict())]
     log = rollout.simulate(cfgs)._asdict()
     valid = log["valid"]
     assert valid[:, :4].all(), valid
@@ -283,6 +287,15 @@ def test_the_step_log_keeps_the_estimate_beside_the_truth():
     assert np.abs(lagged[1:, :, 2]).max() > 1e-3            # after the start from rest
     noisy = (log["x_est"] - log["x_robot"])[2][valid[2]]
     assert 1e-5 < np.abs(noisy[1:, :, 1]).max() < 0.05
+    n3 = int(valid[3].sum())
+    assert n3 == int(valid[4].sum()) == valid.shape[1]
+    dx = np.abs(log["x_robot"][3][:n3] - log["x_robot"][4][:n3])
+    dt = np.abs(log["t_plant"][3][:n3] - log["t_plant"][4][:n3])
+    # measured (float64): c, p within 3 mm and v within 0.017 m/s after three steps, the
+    # kinematic detector firing when the swing sphere is within the gap of the stance sphere
+    # (sunk by its penetration) instead of the floor; 5 mm, 0.03 m/s and 3 ms allowed
+    assert dx[:, :, :2].max() < 5e-3 and dx[:, :, 2].max() < 0.03, dx
+    assert dt.max() < 3e-3, dt
     m = [metrics.scenario_metrics(log, s, with_coverage=False) for s in range(3)]
     assert m[0]["est_err_p"] < 1e-9 and m[0]["est_err_v"] < 1e-9
     assert m[1]["est_err_p"] < 1e-9 and m[1]["est_err_v"] > 1e-4
