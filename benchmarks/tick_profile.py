@@ -26,6 +26,7 @@ stage boundaries inside one program.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import jax
@@ -132,7 +133,13 @@ def main(argv=None) -> None:
     for B in args.batch:
         d, warm, des = _state(c, B)
         stages = _stages(c, des, B)
-        names = args.stages or [n for n in stages if n != "physics (warp)" or warp_physics.available()]
+        names = args.stages or list(stages)
+        if "physics (warp)" in names and not warp_physics.available():
+            print("skipping 'physics (warp)': warp-lang is not installed", file=sys.stderr)
+            names = [n for n in names if n != "physics (warp)"]
+        unknown = sorted(set(names) - set(stages))
+        if unknown:
+            ap.error(f"--stages: unknown {unknown}; allowed: {list(stages)}")
         rows = {n: _time(stages[n], d, warm, args.ticks, args.repeats) for n in names}
         whole = rows.get("tick", (0.0, float("nan")))[1]
         for n, (first, per) in rows.items():

@@ -119,7 +119,7 @@ def _admm_run(batch, static, B: int, steps: int, rows: list, emit) -> list[str]:
     s2 = static._replace(plant_settings=static.plant_settings._replace(qp=qp_s._replace(max_iter=short)))
     placed = rollout.place(batch, rollout.scenario_sharding(jax.devices()[:1]))
     try:
-        _, t_short, _ = timed_run(placed, s2)
+        _, t_short, _ = timed_run(placed, s2, emit, f"batch {B}, ADMM budget cut")
     except Exception as exc:  # noqa: BLE001
         emit(f"batch {B}, ADMM budget {short}: failed: {type(exc).__name__}")
         return []
@@ -236,6 +236,8 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
                 emit(_table_row(rows[-1], _variant(st_q)))
         if admm:
             admm_rows += _admm_run(batch, static, B, steps, rows, emit)
+            if on_row is not None:
+                on_row(rows)                   # the row now carries its ADMM share
     if admm_rows:
         emit(ADMM_HEADER)
         for r in admm_rows:

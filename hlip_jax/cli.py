@@ -116,8 +116,9 @@ def _sweep_overrides(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit", type=_positive_int, metavar="N",
                    help="keep only the first N scenarios")
     p.add_argument("--physics", choices=("jax", "warp"),
-                   help="override cassie.physics of every scenario: the implementation that steps "
-                   "the simulated Cassie (warp needs warp-lang: pip install 'hlip_jax[warp]')")
+                   help="override cassie.physics in the sweep's [base]: the implementation that "
+                   "steps the simulated Cassie (warp needs warp-lang: pip install 'hlip_jax[warp]'); "
+                   "like --plant and --duration, a path or grid axis that sets it keeps its own value")
 
 
 def _cache_options(p: argparse.ArgumentParser) -> None:
@@ -488,6 +489,7 @@ def cmd_bench(args) -> int:
             warp_physics.require()
         except ValueError as err:
             raise UserError(f"--physics: {err}") from None
+
     def write(rows):
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))

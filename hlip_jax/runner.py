@@ -259,10 +259,11 @@ def on_host():
 
 
 def _step_news(bar, done: int, chunk: int, n_chunks: int, duration: float = 0.0,
-               later: int | None = None, every: float = 5.0):
+               later: int | None = None, every: float = 5.0, step_period: float = 0.0):
     """A :mod:`hlip_jax.progress` listener: the walking step reached inside the running chunk
-    and about how much of the scenarios' ``duration`` [s] that simulates, on the progress line
-    at most every ``every`` seconds.  From the second news on it also gives an ETA that leaves
+    and about how much of the chunk's longest ``duration`` [s] that simulates (k steps of
+    ``step_period`` [s], at most ``duration``; k/n of it without a period), on the progress
+    line at most every ``every`` seconds.  From the second news on it also gives an ETA that leaves
     the compile out: with r the steps per second since the first news (which arrives after the
     compile), the rest of this chunk takes (n − k)/r and each of the ``later`` chunks still
     to run after it (default: every later chunk) n/r (their programs are compiled already)."""
@@ -282,9 +283,20 @@ def _step_news(bar, done: int, chunk: int, n_chunks: int, duration: float = 0.0,
         if dt > 0 and dk > 0:
             per_step = dt / dk
             eta = per_step * ((n_steps - k) + n_steps * later)
-        sim = f" (≈ {duration * k / n_steps:.1f} of {duration:g} s simulated)" if duration > 0 else ""
+        t = min(duration, k * step_period) if step_period > 0 else duration * k / n_steps
+        sim = f" (≈ {t:.1f} of {duration:g} s simulated)" if duration > 0 else ""
         bar.update(done, f"chunk {chunk + 1}/{n_chunks}: step {k}/{n_steps}{sim}", eta=eta)
     return hear
+
+
+def _chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget):
+    """The :func:`_step_news` listener of chunk ``i``: its longest duration and step period,
+    and the chunks still to run after it (not stored yet, at most ``budget`` more when
+    ``--max-chunks`` limits the run)."""
+    later = sum(j not in good for j in range(i + 1, len(ranges)))
+    later = later if budget is None else max(0, min(later, budget))
+    return _step_news(bar, done, i, len(ranges), max(c.duration for c in chunk_cfgs), later,
+                      step_period=max(c.hlip.t_ssp + c.hlip.t_dsp for c in chunk_cfgs))
 
 
 def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, good):
@@ -300,10 +312,9 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
             break
         chunk_cfgs = configs[a:b] + [configs[b - 1]] * (batch - (b - a))
         try:
-            span = max(c.duration for c in chunk_cfgs)
-            later = sum(j not in good for j in range(i + 1, len(ranges)))
-            news = (progress.listening(_step_news(bar, done, i, len(ranges), span, later)) if bar.enabled
-                    else contextlib.nullcontext())      # --quiet: no callback compiled in
+            budget = None if max_chunks is None else max_chunks - ran - 1
+            news = (progress.listening(_chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget))
+                    if bar.enabled else contextlib.nullcontext())   # --quiet: nothing compiled in
             with news:
                 log = sim(chunk_cfgs)
         except (ImportError, NotImplementedError) as err:

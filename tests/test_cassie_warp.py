@@ -102,6 +102,8 @@ def test_warp_batch_keeps_every_robots_contacts():
     run = lambda robots: jax.jit(jax.vmap(lambda d: _warp_passive(c, d, ticks, robots)))(batch)
     err = np.abs(np.asarray(run(n).qpos) - ref.qpos[None]).max(axis=1)
     assert err.max() < 5e-5, err
+    # the one-robot buffer's failure, asserted so that this test shows what the sizing
+    # prevents; it depends on MJWarp dropping the contacts that overflow its buffer (3.17.0)
     err_one = np.abs(np.asarray(run(1).qpos) - ref.qpos[None]).max(axis=1)
     assert err_one.max() > 1e-3, err_one
 
@@ -132,6 +134,7 @@ def test_physics_override_from_the_command_line(tmp_path, capsys, monkeypatch):
     # --physics sets cassie.physics of every scenario (run and show), validated like the file:
     # without warp-lang a Warp run is refused naming the field; an unknown value is exit 2
     from hlip_jax import cli, plants, sweep
+    monkeypatch.setattr(plants, "warp_installed", lambda: True)    # parsing only: no Warp run
     text = ('name = "o"\n[base]\nplant = "cassie"\nduration = 1.0\n[[paths]]\nshape = "line"\n'
             '[[paths]]\nname = "c"\nshape = "circle"\n[base.cassie]\nphysics = "jax"\n')
     sw = sweep.parse_sweep(text, physics="warp")

@@ -404,6 +404,12 @@ def test_in_chunk_news_gives_simulated_time_and_an_eta_without_the_compile(monke
     clock[0] = 107.0
     hear(10, 10)                                  # the last step is always told
     assert heard[-1][2] == pytest.approx(7.0 / 9.0 * 10)
+    # with the step period the simulated time is k periods, at most the duration
+    hear = runner._step_news(Bar(), 0, 1, 3, duration=30.0, every=0.0, step_period=0.4)
+    hear(4, 100)
+    assert heard[-1][1] == "chunk 2/3: step 4/100 (≈ 1.6 of 30 s simulated)"
+    hear(100, 100)
+    assert heard[-1][1] == "chunk 2/3: step 100/100 (≈ 30.0 of 30 s simulated)"
 
 
 def test_progress_line_takes_the_in_chunk_eta_until_chunks_give_a_rate():

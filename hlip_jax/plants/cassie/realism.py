@@ -27,10 +27,10 @@ its heel spring, measured, is compressed beyond a threshold, the way the hardwar
 detect contact (walking at 0.5 m/s in the ideal simulation the loaded heel spring sits at −2.2°
 (median; 5 % of stance ticks beyond −3.9°, 95 % beyond −0.5°) and a swinging one within ±1°
 99 % of the time: the default 1.5° separates them) — or the measured leg kinematics: a foot
-touches when its lower sphere is within the gap of the lowest of the four spheres, all from the
-measured state (encoders and IMU, their noise and bias included).  The kinematic detector needs no ground height: the
-stance foot stands for the ground, as on hardware that reads contact from leg kinematics; on
-a slope it fires late uphill and early downhill.
+touches when its lower sphere is within the gap of the lowest of the four spheres, all from
+the measured state (encoders and IMU, their noise and bias included).  The kinematic detector
+needs no ground height: the stance foot stands for the ground, as on hardware that reads
+contact from leg kinematics; on a slope it fires late uphill and early downhill.
 
 **Actuation** (:func:`actuate`).  A control update every n ticks (torques held in between,
 zero-order hold), a latency of L ticks between measurement and torque, a first-order motor lag
