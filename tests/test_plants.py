@@ -37,3 +37,22 @@ def test_cassie_check_rejects_hlip_only_disturbances():
     assert msg and msg.startswith("disturbance.noise_p") and "plant = 'cassie'" in msg
     assert plants.check(C.ScenarioConfig(plant="cassie")) is None
     assert plants.check(dataclasses.replace(cfg, plant="hlip")) is None
+
+
+def test_cassie_step_span_is_computed_once_per_gait():
+    """Building a sweep asks every scenario for its step span; the swing profile's landing
+    fraction behind it is a compiled bisection, so it must be computed once per (clearance,
+    strike) and not once per scenario (1024 scenarios used to take minutes). The cached float
+    is the traced function's value exactly."""
+    from hlip_jax.plants.cassie import outputs
+    from hlip_jax.plants.cassie import plant as cassie_plant
+
+    cassie_plant.landing_fraction.cache_clear()
+    cfgs = [C.ScenarioConfig(plant="cassie", seed=i) for i in range(40)]
+    spans = {plants.load("cassie").step_span(c) for c in cfgs}
+    info = cassie_plant.landing_fraction.cache_info()
+    assert len(spans) == 1
+    assert (info.misses, info.hits) == (1, 39)
+    cc = C.CassieConfig()
+    assert cassie_plant.landing_fraction(cc.clearance, cc.strike) == \
+        float(outputs.landing_fraction(cc.clearance, cc.strike))
