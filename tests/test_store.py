@@ -420,3 +420,22 @@ def test_progress_line_takes_the_in_chunk_eta_until_chunks_give_a_rate():
     assert "ETA 42s" in out.getvalue().splitlines()[-1]
     bar.update(0, "chunk 1/2: step 4/10")
     assert "ETA -" in out.getvalue().splitlines()[-1]
+
+
+def test_chunk_metrics_in_worker_processes_equal_one_process():
+    """A large chunk's metrics are computed by spawned worker processes (a 1024-robot Cassie
+    chunk needs minutes of mRPI sets on one core); the rows must be those of one process,
+    in scenario order, bit for bit (same float64 code; NaN where a metric is undefined)."""
+    cfgs = list(_tiny().scenarios)
+    arrays = store._log_to_arrays(fake_simulate(cfgs), len(cfgs))
+    pushes = [metrics.first_push(c) for c in cfgs]
+    one = runner.chunk_metrics(arrays, pushes, True, workers=1)
+    two = runner.chunk_metrics(arrays, pushes, True, workers=3)
+    assert len(one) == len(two) == len(cfgs)
+    for a, b in zip(one, two):
+        assert a.keys() == b.keys()
+        np.testing.assert_array_equal(np.array(list(a.values()), float),
+                                      np.array(list(b.values()), float))
+    assert runner.metric_workers(16, cpus=2) == 1          # a CPU chunk stays in-process
+    assert runner.metric_workers(1024, cpus=16) == 16
+    assert runner.metric_workers(100, cpus=16) == 3
