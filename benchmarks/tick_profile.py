@@ -8,7 +8,9 @@ Stages (the CLF-QP tick of :mod:`hlip_jax.plants.cassie.control`, the walking ti
     condense   dynamics.condense: the constrained dynamics' affine maps τ ↦ (q̈, λ)
     qp_build   clfqp.build: outputs, CLF rows, friction rows, the QP's matrices
     admm       qp.solve of that QP (the standing controller's ADMM settings), warm-started
-               from the previous tick's solution and cold
+               from the previous tick's solution and cold, with the linear system solved by
+               the Cholesky factor in every iteration or by its inverse formed once per
+               factorisation (``qp.Settings.linsys``, ``cassie.qp_linsys``)
     physics    control.physics: the two MJX steps of a tick (MJX-JAX)
     physics (warp)  the same two steps on MJX's Warp implementation (where warp-lang is installed)
     tick       all of the above in one program (terms → condense → build → solve → physics)
@@ -66,10 +68,11 @@ def _stages(c, des, robots: int):
         _, meas, cond = parts(d)
         return clfqp.build(meas, des, cond, contact, lo, hi, gains)
 
-    def admm(d, warm, cold):
+    def admm(d, warm, cold, linsys="cholesky"):
         p = prob(d)
         w = jax.tree.map(jnp.zeros_like, warm) if cold else warm
-        return qp.solve(p.P, p.q, p.A, p.l, p.u, settings=st, warm_start=w).x
+        return qp.solve(p.P, p.q, p.A, p.l, p.u, settings=st._replace(linsys=linsys),
+                        warm_start=w).x
 
     def tick(d, warm):
         res, _, _ = control.control(c, d, des, contact, lo, hi, gains, warm, st)
@@ -82,6 +85,8 @@ def _stages(c, des, robots: int):
         "qp_build": lambda d, w: prob(d).P,
         "admm (warm)": lambda d, w: admm(d, w, False),
         "admm (cold)": lambda d, w: admm(d, w, True),
+        "admm (warm, inverse)": lambda d, w: admm(d, w, False, "inverse"),
+        "admm (cold, inverse)": lambda d, w: admm(d, w, True, "inverse"),
         "physics": lambda d, w: control.physics(c, d, zero, jnp.zeros(3, dt)).qpos,
         "physics (warp)": lambda d, w: control.physics(
             c, d, zero, jnp.zeros(3, dt), mx=warp_physics.base_model(c.mj_model), backend="warp",

@@ -26,16 +26,16 @@ HEADER = ("| batch | devices | CLF-QP loop, physics | steps | compile + first [s
 
 
 def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: str = "while",
-            physics: str = "jax"):
+            physics: str = "jax", qp_linsys: str = "cholesky"):
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
     of docs/cassie_gait.md (the default gait preset's H-LIP timing and 3-state LQR stepping
-    gain), the CLF-QP loop ``qp_loop`` and the physics implementation ``physics``
-    (``CassieConfig.qp_loop``, ``CassieConfig.physics``)."""
+    gain), the CLF-QP loop ``qp_loop``, its linear solve ``qp_linsys`` and the physics
+    implementation ``physics`` (``CassieConfig.qp_loop``, ``qp_linsys``, ``physics``)."""
     from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
     from hlip_jax.plants.cassie import gaits
     W = gaits.preset(gaits.DEFAULT)
     budget = {} if qp_max_iter is None else {"qp_max_iter": qp_max_iter}
-    cassie = CassieConfig(qp_loop=qp_loop, physics=physics, **budget)
+    cassie = CassieConfig(qp_loop=qp_loop, physics=physics, qp_linsys=qp_linsys, **budget)
     return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
                            hlip=HLIPConfig(z0=W["hlip.z0"], t_ssp=W["hlip.t_ssp"],
                                            t_dsp=W["hlip.t_dsp"]),
@@ -167,8 +167,11 @@ def _loop(static) -> str:
 
 
 def _variant(static) -> str:
-    """'<CLF-QP loop> loop, <physics> physics' of a build's static settings."""
-    return f"{_loop(static)} loop, {static.plant_settings.physics} physics"
+    """'<CLF-QP loop> loop[, <linsys>], <physics> physics' of a build's static settings (the
+    linear solve named where it is not the default Cholesky)."""
+    linsys = static.plant_settings.qp.linsys
+    solve = "" if linsys == "cholesky" else f", {linsys}"
+    return f"{_loop(static)} loop{solve}, {static.plant_settings.physics} physics"
 
 
 def _row(static, B: int, T: float, steps: int, prate: float, n_dev: int, t_first: float,
@@ -179,6 +182,7 @@ def _row(static, B: int, T: float, steps: int, prate: float, n_dev: int, t_first
     from hlip_jax import steplog
     rate = B * steps / t_run
     return dict(batch=B, devices=n_dev, qp_loop=_loop(static),
+                qp_linsys=static.plant_settings.qp.linsys,
                 physics=static.plant_settings.physics, steps=static.n_steps,
                 compile_first_s=t_first, run_s=t_run,
                 robot_s_per_s=B * static.n_steps * T / t_run, physics_steps_per_s=rate,
@@ -200,10 +204,11 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
                 emit: Callable[[str], None] = print, admm: bool = False,
                 qp_loops: Sequence[str] = ("while",),
                 physics: Sequence[str] = ("jax",),
-                on_row: Callable[[list], None] | None = None) -> list[dict]:
+                on_row: Callable[[list], None] | None = None,
+                qp_linsys: Sequence[str] = ("cholesky",)) -> list[dict]:
     """Run the benchmark for every batch size × CLF-QP loop (``qp_loops``, values of
-    ``CassieConfig.qp_loop``) × physics implementation (``physics``, values of
-    ``CassieConfig.physics``) × device count; ``emit`` gets the markdown table (header, then
+    ``CassieConfig.qp_loop``) × linear solve (``qp_linsys``, ``CassieConfig.qp_linsys``) ×
+    physics implementation (``physics``, values of ``CassieConfig.physics``) × device count; ``emit`` gets the markdown table (header, then
     one row per run).  With ``admm`` every batch size is also run (one device, the first
     variant) with the CLF-QP's ADMM budget cut to one convergence check, and the ADMM
     iterations' share of the tick follows (:func:`admm_share`, second table).  Returns one
@@ -220,8 +225,8 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
     emit(HEADER)
     rows, admm_rows = [], []
     for B in batches:
-        builds = [rollout.build(configs(B, duration, qp_loop=q, physics=ph))
-                  for ph in physics for q in qp_loops]
+        builds = [rollout.build(configs(B, duration, qp_loop=q, physics=ph, qp_linsys=ls))
+                  for ph in physics for q in qp_loops for ls in qp_linsys]
         batch, static = builds[0]
         T = float(np.asarray(batch.t_ssp[0] + batch.t_dsp[0]))
         ticks = static.n_steps * int(round(T / control.CONTROL_DT))

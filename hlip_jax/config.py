@@ -168,6 +168,11 @@ class CassieConfig:
                         "robot's QP of the batch has converged; 'fixed' always runs the whole budget in a "
                         "loop of static trip count (the same torques; on an H100 2.2x slower at batch 32, "
                         "BENCHMARKS.md)", choices=("while", "fixed"))
+    qp_linsys: str = spec("cholesky", doc="how the CLF-QP's ADMM solves its linear system each iteration "
+                          "(static): 'cholesky' (two triangular solves with the factor) or 'inverse' "
+                          "(the inverse formed once per factorisation, then a matrix-vector product; "
+                          "the same solutions within the solver's tolerance, faster on a GPU, "
+                          "BENCHMARKS.md)", choices=("cholesky", "inverse"))
     qp_fallback: str = spec("hold", doc="torques of a tick whose CLF-QP the ADMM budget did not solve: "
                             "the previous tick's ('hold') or the last iterate clipped to the limits ('iterate')",
                             choices=("hold", "iterate"))

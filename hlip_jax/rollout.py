@@ -196,6 +196,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
                            ("cassie.qp_max_iter", c.cassie.qp_max_iter, first.cassie.qp_max_iter),
                            ("cassie.qp_eps", c.cassie.qp_eps, first.cassie.qp_eps),
                            ("cassie.qp_loop", c.cassie.qp_loop, first.cassie.qp_loop),
+                           ("cassie.qp_linsys", c.cassie.qp_linsys, first.cassie.qp_linsys),
                            ("cassie.physics", c.cassie.physics, first.cassie.physics)):
             if a != b:
                 raise ValueError(f"{name} must be the same for every scenario of a batch "

@@ -108,7 +108,8 @@ _NAME_ALLOWED = "letters, digits, spaces and . _ - + = , @ ( ) (no slashes)"
 #: settings that are array shapes or compiled solver settings (:func:`hlip_jax.rollout.batch_of`
 #: requires them equal across a batch): one value per sweep
 STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.qp_max_iter", "mpc.qp_eps",
-                 "cassie.qp_max_iter", "cassie.qp_eps", "cassie.qp_loop", "cassie.physics")
+                 "cassie.qp_max_iter", "cassie.qp_eps", "cassie.qp_loop", "cassie.qp_linsys",
+                 "cassie.physics")
 
 TOP_KEYS = ("name", "description", "base", "paths", "grid")
 GRID_KEYS = ("product", "zip")

@@ -22,6 +22,8 @@ def test_bench_configs_carry_the_admm_budget():
     c = bench.configs(2, 0.6, qp_max_iter=25, qp_loop="fixed", physics="warp")
     assert [(x.cassie.qp_loop, x.cassie.physics, x.cassie.qp_max_iter) for x in c] == [("fixed", "warp", 25)] * 2
     assert bench.configs(1, 0.6)[0].cassie.physics == "jax"
+    assert bench.configs(1, 0.6, qp_linsys="inverse")[0].cassie.qp_linsys == "inverse"
+    assert bench.configs(1, 0.6)[0].cassie.qp_linsys == "cholesky"
 
 
 def test_a_cut_off_bench_keeps_what_it_measured(monkeypatch, tmp_path):

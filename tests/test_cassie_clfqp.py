@@ -199,6 +199,43 @@ def test_fixed_trip_count_loop_gives_the_same_torques(cassie, terms_fn):
         np.testing.assert_allclose(a.tau, b.tau, atol=1e-12, rtol=0)
         assert int(a.status) == int(b.status) and int(a.iterations) == int(b.iterations)
 
+def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
+    # cassie.qp_linsys = "inverse" (K⁻¹ formed once per factorisation, then products) against
+    # the Cholesky solves of every iteration, with the tick's settings, cold and warm: the
+    # same iterations and status, torques within 1e-9 N m (float64: only the linear solve's
+    # rounding differs, ~1e-13 relative per iteration, amplified by at most a few hundred
+    # iterations); and at tight tolerance both meet OSQP's solution to 1e-4 N m as above
+    d = _data(cassie, qpos_noise=0.01, qvel_noise=0.2, seed=7)
+    terms = terms_fn(d)
+    contact = jnp.array([1.0, 1.0, 0.0, 0.0])
+    meas = outputs.measure(terms, d.qvel, cassie.index.root_dof)
+    cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie))
+    com = np.asarray(terms.com)
+    des = outputs.stand_desired(com[2] - 0.02, com[:2], 0.0)
+    lo, hi = cassie.ctrl_range[:, 0], cassie.ctrl_range[:, 1]
+    warm = control.warm_zeros(cassie, jnp.float64)
+    s = clfqp.DEFAULT_SETTINGS
+    runs = {}
+    for linsys in ("cholesky", "inverse"):
+        st = s._replace(linsys=linsys)
+        r0 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, warm, st)
+        r1 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, r0.warm, st)
+        runs[linsys] = (r0, r1)
+    for a, b in zip(runs["cholesky"], runs["inverse"]):
+        np.testing.assert_allclose(a.tau, b.tau, atol=1e-9, rtol=0)
+        assert int(a.status) == int(b.status) and int(a.iterations) == int(b.iterations)
+    prob = clfqp.build(meas, des, cond, contact, lo, hi, control.STAND_GAINS)
+    tight = qp.Settings(eps_abs=1e-9, eps_rel=1e-9, max_iter=200000, linsys="inverse")
+    x = np.asarray(qp.solve(prob.P, prob.q, prob.A, prob.l, prob.u, settings=tight).x)
+    P, q, A, l, u = (np.asarray(a) for a in (prob.P, prob.q, prob.A, prob.l, prob.u))
+    o = osqp.OSQP()
+    o.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), np.maximum(l, -1e30), np.minimum(u, 1e30),
+            verbose=False, eps_abs=1e-9, eps_rel=1e-9, max_iter=200000, polishing=True)
+    ref = o.solve()
+    nu = cassie.index.nu
+    np.testing.assert_allclose(x[:nu], ref.x[:nu], atol=1e-4 * max(1.0, np.abs(ref.x).max()))
+
+
 # ------------------------------------------------------------------------- standing on MJX
 
 CHUNK = 250          # control ticks per compiled call (0.25 s)

@@ -212,6 +212,12 @@ def test_make_params_pushes_and_validation():
     assert rollout.build([cfg4])[1].plant_settings.qp.early_exit is False
     with pytest.raises(ValueError, match="cassie.qp_loop"):
         rollout.build([cfg3, cfg4])
+    # and so is its linear solve
+    cfg5 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_linsys="inverse", qp_max_iter=50))
+    assert rollout.build([cfg5])[1].plant_settings.qp.linsys == "inverse"
+    assert rollout.build([cfg3])[1].plant_settings.qp.linsys == "cholesky"
+    with pytest.raises(ValueError, match="cassie.qp_linsys"):
+        rollout.build([cfg3, cfg5])
 
 
 def test_scenario_model_sets_the_spring_damping():
