@@ -153,6 +153,9 @@ class CassieConfig:
     omega_swing: float = spec(17.0053, 0.5, 80.0, "swing-foot position and slope output frequency", "rad/s")
     omega_yaw: float = spec(7.5996, 0.5, 50.0, "swing-foot yaw output frequency", "rad/s")
     weight_pelvis: float = spec(6.3141, 0.0, 10.0, "QP tracking weight of the pelvis orientation outputs")
+    w_chatter: float = spec(0.0, 0.0, 100.0, "CLF-QP weight on the torque change from the previous "
+                            "tick, ½ w ‖τ − τ_prev‖² (Xiong's Cassie controller has such a term; 0: none)",
+                            "1/(N m)²")
     shin_damping: float = spec(0.1, 0.0, 100.0, "viscous damping of the simulated shin leaf springs "
                                "(Agility's Cassie model: 0.1)", "N m s/rad")
     heel_damping: float = spec(0.0, 0.0, 100.0, "viscous damping of the simulated heel leaf springs "

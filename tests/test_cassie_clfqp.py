@@ -236,6 +236,43 @@ def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
     np.testing.assert_allclose(x[:nu], ref.x[:nu], atol=1e-4 * max(1.0, np.abs(ref.x).max()))
 
 
+def test_chatter_term_adds_a_proximal_cost_and_is_inert_at_zero(cassie, terms_fn):
+    # ½ w_c ‖τ − τ_prev‖² adds w_c I to the torque block of P and −w_c τ_prev to q (exactly:
+    # the same matrices as the plain QP's with the shifted entries); at w_c = 0 the QP does
+    # not depend on τ_prev at all (bit for bit)
+    d = _data(cassie, qpos_noise=0.01, qvel_noise=0.2, seed=11)
+    terms = terms_fn(d)
+    contact = jnp.ones(4)
+    meas = outputs.measure(terms, d.qvel, cassie.index.root_dof)
+    cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie))
+    com = np.asarray(terms.com)
+    des = outputs.stand_desired(com[2] - 0.02, com[:2], 0.0)
+    lo, hi = cassie.ctrl_range[:, 0], cassie.ctrl_range[:, 1]
+    nu = cassie.index.nu
+    tau_prev = 0.3 * np.random.default_rng(0).uniform(lo, hi)
+    g0 = control.STAND_GAINS
+    plain = clfqp.build(meas, des, cond, contact, lo, hi, g0)
+    moved = clfqp.build(meas, des, cond, contact, lo, hi, g0, tau_prev=tau_prev)
+    np.testing.assert_array_equal(plain.P, moved.P)
+    np.testing.assert_array_equal(plain.q, moved.q)
+    w = 7.0
+    gw = g0._replace(w_chatter=np.float64(w))
+    pw = clfqp.build(meas, des, cond, contact, lo, hi, gw, tau_prev=tau_prev)
+    np.testing.assert_allclose(pw.P[:nu, :nu], plain.P[:nu, :nu] + w * np.eye(nu), rtol=1e-14)
+    np.testing.assert_allclose(pw.q[:nu], plain.q[:nu] - w * tau_prev, rtol=1e-14, atol=1e-12)
+    np.testing.assert_array_equal(pw.A, plain.A)
+    # a proximal term centred on the plain QP's own optimum leaves that optimum unchanged
+    # (1e-5 N m at tolerance 1e-9: both solves' own error)
+    st = qp.Settings(eps_abs=1e-9, eps_rel=1e-9, max_iter=200000)
+    zero = (jnp.zeros(nu + clfqp.N_GROUPS), jnp.zeros(plain.l.shape[0]))
+    star = clfqp.solve(meas, des, cond, contact, lo, hi, g0, zero, st)
+    warm = (jnp.zeros(nu + clfqp.N_GROUPS).at[:nu].set(star.tau), zero[1])
+    res = clfqp.solve(meas, des, cond, contact, lo, hi, g0._replace(w_chatter=np.float64(50.0)),
+                      warm, st)
+    assert int(star.status) == int(res.status) == qp.SOLVED
+    np.testing.assert_allclose(res.tau, star.tau, atol=1e-5, rtol=0)
+
+
 # ------------------------------------------------------------------------- standing on MJX
 
 CHUNK = 250          # control ticks per compiled call (0.25 s)

@@ -29,13 +29,14 @@ at the COM height's rate).  Along the output dynamics
 
 QP over x = [τ (nu), δ (4)]:
 
-    min  ½ ‖W (A_μ τ + b_μ − μ_PD)‖² + ½ w_τ ‖τ‖² + ½ p ‖δ‖²
+    min  ½ ‖W (A_μ τ + b_μ − μ_PD)‖² + ½ w_τ ‖τ‖² + ½ w_c ‖τ − τ_prev‖² + ½ p ‖δ‖²
     s.t. L_fV_g + L_gV_g (A_μ τ + b_μ) ≤ −γ_g V_g + δ_g,   δ_g ≥ 0  (per group, relaxed)
          λ_z ≥ 0,  |λ_x|, |λ_y| ≤ μ_f λ_z  at every active contact   (unilateral, pyramid)
          τ_min ≤ τ ≤ τ_max                                          (motor limits; a passive
                                                                      motor has τ_min = τ_max = 0)
 
-with μ_PD = −k_p e − k_d ė the CLF's own LQR input (the tracking term keeps the QP strictly
+with τ_prev the previous tick's solution (the chatter term w_c, 0 by default, smooths the
+torques from tick to tick as Xiong's Cassie controller does) and μ_PD = −k_p e − k_d ė the CLF's own LQR input (the tracking term keeps the QP strictly
 convex and the torque near the LQR's; the CLF rows are the guarantee), solved by
 :func:`hlip_jax.qp.solve` warm-started from the previous tick; with ``fallback`` a tick whose QP is not
 solved within the iteration budget (typically infeasible contact rows at an impact) keeps the
@@ -67,6 +68,7 @@ class Gains(NamedTuple):
     weight: jax.Array      # (16,) tracking weights W² (dimensionless)
     gamma: jax.Array       # (N_GROUPS,) CLF decay rate of each output group [1/s]
     w_tau: jax.Array       # torque regularisation weight [1/(N m)²]
+    w_chatter: jax.Array   # weight of the torque change from the previous tick [1/(N m)²]
     w_delta: jax.Array     # CLF relaxation weight
     friction: jax.Array    # pyramid friction coefficient used in the QP (≤ the model's)
 
@@ -87,7 +89,8 @@ def clf_rate(kp, kd) -> float:
     return float(scipy.linalg.eigh(Q + K.T @ K, P, eigvals_only=True).min())
 
 
-def make_gains(omega, zeta=1.0, weight=None, w_tau=1e-4, w_delta=1e2, friction=0.6) -> Gains:
+def make_gains(omega, zeta=1.0, weight=None, w_tau=1e-4, w_delta=1e2, friction=0.6,
+               w_chatter=0.0) -> Gains:
     """Gains from natural frequencies ``omega`` (16,) [rad/s] and damping ratio ζ ≥ 1/√2
     (k_d² ≥ 2k_p keeps the CARE weight Q ⪰ 0)."""
     omega = np.broadcast_to(np.asarray(omega, float), (outputs.N_OUT,))
@@ -100,7 +103,8 @@ def make_gains(omega, zeta=1.0, weight=None, w_tau=1e-4, w_delta=1e2, friction=0
     gamma = np.array([rates[g].min() for g in outputs.GROUPS])
     weight = np.ones(outputs.N_OUT) if weight is None else np.broadcast_to(weight, (outputs.N_OUT,))
     return Gains(kp=kp, kd=kd, weight=np.asarray(weight, float), gamma=gamma,
-                 w_tau=np.float64(w_tau), w_delta=np.float64(w_delta),
+                 w_tau=np.float64(w_tau), w_chatter=np.float64(w_chatter),
+                 w_delta=np.float64(w_delta),
                  friction=np.float64(friction))
 
 
@@ -120,8 +124,9 @@ class Problem(NamedTuple):
 
 
 def build(meas: outputs.Measured, des: outputs.Desired, cond: dynamics.Condensed,
-          contact, tau_min, tau_max, gains: Gains) -> Problem:
-    """The CLF-QP of the module doc as (P, q, A, l, u) over x = [τ, δ]."""
+          contact, tau_min, tau_max, gains: Gains, tau_prev=0.0) -> Problem:
+    """The CLF-QP of the module doc as (P, q, A, l, u) over x = [τ, δ]; ``tau_prev`` (nu,)
+    [N m] is the chatter term's reference (the previous tick's torques)."""
     e, edot = outputs.errors(meas, des)
     m = des.mask
     kp, kd = jnp.asarray(gains.kp), jnp.asarray(gains.kd)
@@ -132,8 +137,8 @@ def build(meas: outputs.Measured, des: outputs.Desired, cond: dynamics.Condensed
     nu = A_mu.shape[1]
     dt = A_mu.dtype
     G = N_GROUPS
-    H = A_mu.T @ (W[:, None] * A_mu) + gains.w_tau * jnp.eye(nu, dtype=dt)
-    g = A_mu.T @ (W * (b_mu - mu_pd))
+    H = A_mu.T @ (W[:, None] * A_mu) + (gains.w_tau + gains.w_chatter) * jnp.eye(nu, dtype=dt)
+    g = A_mu.T @ (W * (b_mu - mu_pd)) - gains.w_chatter * jnp.asarray(tau_prev, dt)
     P = jnp.zeros((nu + G, nu + G), dt).at[:nu, :nu].set(H)
     P = P.at[nu:, nu:].set(gains.w_delta * jnp.eye(G, dtype=dt))
     q = jnp.concatenate([g, jnp.zeros(G, dt)])
@@ -213,7 +218,8 @@ def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
     ``CassieConfig.qp_fallback``; standing push recovery does better with the iterate).
     ``active`` false (traced boolean): the tick's torques are not used; a trivial QP is solved
     instead (:func:`idle`) and the result carries ``warm`` unchanged."""
-    prob = build(meas, des, cond, contact, tau_min, tau_max, gains)
+    nu = jnp.shape(tau_min)[0]
+    prob = build(meas, des, cond, contact, tau_min, tau_max, gains, tau_prev=warm[0][:nu])
     P, q, l, u, w = idle(prob, warm, active)
     sol = qp.solve(P, q, prob.A, l, u, settings=settings, warm_start=w)
     # with ``fallback`` a problem the ADMM budget did not solve (typically infeasible contact
@@ -224,7 +230,6 @@ def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
     ok = finite & (solved | jnp.logical_not(fallback)) & active
     x = jnp.where(ok, sol.x, warm[0])
     y = jnp.where(ok, sol.y, warm[1])
-    nu = prob.P.shape[0] - N_GROUPS
     tau = jnp.clip(x[:nu], tau_min, tau_max)
     return Result(tau=tau, delta=x[nu:], V=prob.V, Vdot=prob.Vdot_free + prob.LgV_A @ tau,
                   status=sol.status, iterations=sol.iterations, warm=(x, y))

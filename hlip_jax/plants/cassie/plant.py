@@ -67,7 +67,7 @@ def make_gait(cfg=None) -> Gait:
     COM height (3) ``omega_height``, both feet's position and sole slope (6..13)
     ``omega_swing``, foot yaw (14, 15) ``omega_yaw``; rows 4, 5 (horizontal COM) are never
     active while walking (their frequency is the height's, for a well-defined CLF).  QP
-    weights 1 except the pelvis rows (``weight_pelvis``)."""
+    weights 1 except the pelvis rows (``weight_pelvis``); torque-change weight ``w_chatter``."""
     from hlip_jax.config import CassieConfig
 
     cfg = CassieConfig() if cfg is None else cfg
@@ -82,7 +82,7 @@ def make_gait(cfg=None) -> Gait:
              step_length_max=f(cfg.step_length_max), step_width_min=f(cfg.step_width_min),
              step_width_max=f(cfg.step_width_max),
              damping=np.array([cfg.shin_damping, cfg.heel_damping] * 2, float),
-             hold_unsolved=f(cfg.qp_fallback == "hold"), gains=clfqp.make_gains(omega, weight=weight))
+             hold_unsolved=f(cfg.qp_fallback == "hold"), gains=clfqp.make_gains(omega, weight=weight, w_chatter=cfg.w_chatter))
     _GAIT_CACHE[cfg] = g
     return g
 
