@@ -7,6 +7,7 @@ chunk through :mod:`hlip_jax.progress`).
 from __future__ import annotations
 
 import concurrent.futures
+import concurrent.futures.process
 import contextlib
 import dataclasses
 import functools
@@ -400,6 +401,11 @@ def chunk_metrics(arrays: dict, push_times: list, with_coverage: bool,
     import jax
     ctx = multiprocessing.get_context("spawn")
     same = [with_coverage] * workers, [bool(jax.config.jax_enable_x64)] * workers
-    with _cpu_children(), concurrent.futures.ProcessPoolExecutor(workers, mp_context=ctx) as ex:
-        parts = list(ex.map(metrics_block, *zip(*blocks), *same))
+    try:
+        with _cpu_children(), concurrent.futures.ProcessPoolExecutor(workers, mp_context=ctx) as ex:
+            parts = list(ex.map(metrics_block, *zip(*blocks), *same))
+    except (OSError, concurrent.futures.process.BrokenProcessPool):
+        # no worker processes here (a sandbox without fork/spawn, a killed worker): the
+        # chunk's simulation is done and must not be lost, so compute in this process
+        return metrics_block(arrays, push_times, with_coverage)
     return [m for part in parts for m in part]

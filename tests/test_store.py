@@ -439,3 +439,25 @@ def test_chunk_metrics_in_worker_processes_equal_one_process():
     assert runner.metric_workers(16, cpus=2) == 1          # a CPU chunk stays in-process
     assert runner.metric_workers(1024, cpus=16) == 16
     assert runner.metric_workers(100, cpus=16) == 3
+
+
+def test_chunk_metrics_fall_back_to_this_process_without_workers(monkeypatch):
+    """Where worker processes cannot start, the finished chunk's metrics are computed here
+    (a simulated chunk is never lost to the analysis): same rows as the serial path."""
+    import concurrent.futures
+
+    class NoPool:
+        def __init__(self, *a, **k):
+            raise OSError("no processes here")
+
+    cfgs = list(_tiny().scenarios)[:4]
+    arrays = store._log_to_arrays(fake_simulate(cfgs), len(cfgs))
+    pushes = [metrics.first_push(c) for c in cfgs]
+    one = runner.chunk_metrics(arrays, pushes, False, workers=1)
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", NoPool)
+    two = runner.chunk_metrics(arrays, pushes, False, workers=2)
+    assert len(one) == len(two) == 4
+    for a, b in zip(one, two):
+        assert a.keys() == b.keys()
+        np.testing.assert_array_equal(np.array(list(a.values()), float),
+                                      np.array(list(b.values()), float))
