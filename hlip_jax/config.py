@@ -237,6 +237,21 @@ class ScenarioConfig:
     swept: dict = field(default_factory=dict)
 
 
+#: settings that are array shapes or compiled solver settings: one value for every scenario of
+#: a batch (:func:`hlip_jax.rollout.build`) and of a sweep (:mod:`hlip_jax.sweep`)
+STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.qp_max_iter", "mpc.qp_eps",
+                 "cassie.qp_max_iter", "cassie.qp_eps", "cassie.qp_loop", "cassie.qp_linsys",
+                 "cassie.physics")
+
+
+def field_value(cfg: "ScenarioConfig", field: str):
+    """The value of a dotted field (``"cassie.qp_loop"``) of a scenario."""
+    obj = cfg
+    for k in field.split("."):
+        obj = getattr(obj, k)
+    return obj
+
+
 def field_spec(cls, name) -> dict[str, Any]:
     """Validation metadata of ``cls.name`` (empty for structural fields)."""
     for f in dataclasses.fields(cls):

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hlip_jax import hlip, mpc, paths, progress, qp, robust
-from hlip_jax.config import RealismConfig, ScenarioConfig
+from hlip_jax.config import STATIC_FIELDS, RealismConfig, ScenarioConfig, field_value
 from hlip_jax import plants
 from hlip_jax.plants.base import StepCommand
 from hlip_jax.steplog import STATUS_FELL, STATUS_NONFINITE, STATUS_OK, STATUS_QP_FAILED, Log
@@ -189,15 +189,8 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
         raise ValueError("build: no scenarios")
     first = configs[0]
     for c in configs:
-        for name, a, b in (("mpc.horizon", c.mpc.horizon, first.mpc.horizon),
-                           ("mpc.qp_max_iter", c.mpc.qp_max_iter, first.mpc.qp_max_iter),
-                           ("mpc.qp_eps", c.mpc.qp_eps, first.mpc.qp_eps),
-                           ("plant", c.plant, first.plant),
-                           ("cassie.qp_max_iter", c.cassie.qp_max_iter, first.cassie.qp_max_iter),
-                           ("cassie.qp_eps", c.cassie.qp_eps, first.cassie.qp_eps),
-                           ("cassie.qp_loop", c.cassie.qp_loop, first.cassie.qp_loop),
-                           ("cassie.qp_linsys", c.cassie.qp_linsys, first.cassie.qp_linsys),
-                           ("cassie.physics", c.cassie.physics, first.cassie.physics)):
+        for name in STATIC_FIELDS:
+            a, b = field_value(c, name), field_value(first, name)
             if a != b:
                 raise ValueError(f"{name} must be the same for every scenario of a batch "
                                  f"(it fixes shapes/compiled settings): got {a!r} and {b!r}")

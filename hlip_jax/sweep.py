@@ -105,11 +105,9 @@ MAX_NAME_LEN, MAX_PATH_NAME_LEN = 100, 64
 #: characters a sweep or path name may hold (it becomes a file or directory name)
 _NAME_RE = re.compile(r"[A-Za-z0-9 _.+=,@()-]+")
 _NAME_ALLOWED = "letters, digits, spaces and . _ - + = , @ ( ) (no slashes)"
-#: settings that are array shapes or compiled solver settings (:func:`hlip_jax.rollout.batch_of`
+#: settings that are array shapes or compiled solver settings (:func:`hlip_jax.rollout.build`
 #: requires them equal across a batch): one value per sweep
-STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.qp_max_iter", "mpc.qp_eps",
-                 "cassie.qp_max_iter", "cassie.qp_eps", "cassie.qp_loop", "cassie.qp_linsys",
-                 "cassie.physics")
+STATIC_FIELDS = C.STATIC_FIELDS
 
 TOP_KEYS = ("name", "description", "base", "paths", "grid")
 GRID_KEYS = ("product", "zip")
@@ -855,13 +853,6 @@ def _check_path_fields(entries: list[_PathEntry], keymap: dict) -> None:
                                  f"parameter {keys[1]!r}{hint} (known: {', '.join(spec)})")
 
 
-def _static_value(cfg: C.ScenarioConfig, field: str):
-    obj = cfg
-    for k in field.split("."):
-        obj = getattr(obj, k)
-    return obj
-
-
 def _check_static(entries: list[_PathEntry], axes: tuple[Axis, ...]) -> None:
     """:data:`STATIC_FIELDS` must take one value across the sweep: swept over one value at
     most, and equal in every path's settings where not swept."""
@@ -881,9 +872,9 @@ def _check_static(entries: list[_PathEntry], axes: tuple[Axis, ...]) -> None:
     for f in STATIC_FIELDS:
         if f in swept:
             continue
-        v0 = _static_value(first.cfg, f)
+        v0 = C.field_value(first.cfg, f)
         for e in entries[1:]:
-            v = _static_value(e.cfg, f)
+            v = C.field_value(e.cfg, f)
             if v != v0:
                 raise SweepError(f"paths.{e.index}.overrides: {f} = {_fmt(v)} differs from "
                                  f"{f} = {_fmt(v0)} of path {first.name!r}, but {f} {why}; "
@@ -896,7 +887,7 @@ def _check_static_scenarios(scenarios) -> None:
     first = scenarios[0] if scenarios else None
     for cfg in scenarios[1:]:
         for f in STATIC_FIELDS:
-            v, v0 = _static_value(cfg, f), _static_value(first, f)
+            v, v0 = C.field_value(cfg, f), C.field_value(first, f)
             if v != v0:
                 raise SweepError(f"scenario {cfg.name!r}: {f} = {_fmt(v)} differs from {f} = "
                                  f"{_fmt(v0)} of scenario {first.name!r}, but {f} is a static "

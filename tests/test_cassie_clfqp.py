@@ -38,6 +38,28 @@ def terms_fn(cassie):
     return jax.jit(lambda d: model.robot_terms(cassie, d))
 
 
+def _osqp_reference(prob):
+    """OSQP (C) on a CLF-QP, polished, at tolerance 1e-9: the independent reference."""
+    P, q, A, l, u = (np.asarray(a) for a in (prob.P, prob.q, prob.A, prob.l, prob.u))
+    o = osqp.OSQP()
+    o.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), np.maximum(l, -1e30), np.minimum(u, 1e30),
+            verbose=False, eps_abs=1e-9, eps_rel=1e-9, max_iter=200000, polishing=True)
+    return o.solve()
+
+
+def _left_foot_problem(cassie, terms_fn, seed):
+    """(meas, des, cond, contact, lo, hi) of a perturbed state standing on the left foot, with
+    the COM asked 2 cm lower: the CLF-QP's inputs of the loop and linear-solve comparisons."""
+    d = _data(cassie, qpos_noise=0.01, qvel_noise=0.2, seed=seed)
+    terms = terms_fn(d)
+    contact = jnp.array([1.0, 1.0, 0.0, 0.0])
+    meas = outputs.measure(terms, d.qvel, cassie.index.root_dof)
+    cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie))
+    com = np.asarray(terms.com)
+    des = outputs.stand_desired(com[2] - 0.02, com[:2], 0.0)
+    return meas, des, cond, contact, cassie.ctrl_range[:, 0], cassie.ctrl_range[:, 1]
+
+
 # ------------------------------------------------------------------------------------ CLF
 
 
@@ -156,11 +178,7 @@ def test_clfqp_respects_limits_and_matches_osqp(cassie, terms_fn):
     # limits hold up to the solver tolerance
     assert np.all(x[:nu] >= lo - 1e-5) and np.all(x[:nu] <= hi + 1e-5)
     # OSQP (C) on the same problem, polished; agree to 1e-4 in τ [N m]
-    P, q, A, l, u = (np.asarray(a) for a in (prob.P, prob.q, prob.A, prob.l, prob.u))
-    o = osqp.OSQP()
-    o.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), np.maximum(l, -1e30), np.minimum(u, 1e30),
-            verbose=False, eps_abs=1e-9, eps_rel=1e-9, max_iter=200000, polishing=True)
-    ref = o.solve()
+    ref = _osqp_reference(prob)
     np.testing.assert_allclose(x[:nu], ref.x[:nu], atol=1e-4 * max(1.0, np.abs(ref.x).max()))
     res = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS,
                       control.warm_zeros(cassie, jnp.float64), settings)
@@ -178,14 +196,7 @@ def test_fixed_trip_count_loop_gives_the_same_torques(cassie, terms_fn):
     # (cassie.qp_loop = "fixed", the accelerator default) against the while loop: the same
     # torques to 1e-12 N m (float64; two compiled programs may round differently), the same
     # status and iteration count, on a perturbed state and from a warm start
-    d = _data(cassie, qpos_noise=0.01, qvel_noise=0.2, seed=5)
-    terms = terms_fn(d)
-    contact = jnp.array([1.0, 1.0, 0.0, 0.0])
-    meas = outputs.measure(terms, d.qvel, cassie.index.root_dof)
-    cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie))
-    com = np.asarray(terms.com)
-    des = outputs.stand_desired(com[2] - 0.02, com[:2], 0.0)
-    lo, hi = cassie.ctrl_range[:, 0], cassie.ctrl_range[:, 1]
+    meas, des, cond, contact, lo, hi = _left_foot_problem(cassie, terms_fn, seed=5)
     warm = control.warm_zeros(cassie, jnp.float64)
     s = clfqp.DEFAULT_SETTINGS
     results = []
@@ -205,14 +216,7 @@ def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
     # same iterations and status, torques within 1e-9 N m (float64: only the linear solve's
     # rounding differs, ~1e-13 relative per iteration, amplified by at most a few hundred
     # iterations); and at tight tolerance both meet OSQP's solution to 1e-4 N m as above
-    d = _data(cassie, qpos_noise=0.01, qvel_noise=0.2, seed=7)
-    terms = terms_fn(d)
-    contact = jnp.array([1.0, 1.0, 0.0, 0.0])
-    meas = outputs.measure(terms, d.qvel, cassie.index.root_dof)
-    cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie))
-    com = np.asarray(terms.com)
-    des = outputs.stand_desired(com[2] - 0.02, com[:2], 0.0)
-    lo, hi = cassie.ctrl_range[:, 0], cassie.ctrl_range[:, 1]
+    meas, des, cond, contact, lo, hi = _left_foot_problem(cassie, terms_fn, seed=7)
     warm = control.warm_zeros(cassie, jnp.float64)
     s = clfqp.DEFAULT_SETTINGS
     runs = {}
@@ -227,11 +231,7 @@ def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
     prob = clfqp.build(meas, des, cond, contact, lo, hi, control.STAND_GAINS)
     tight = qp.Settings(eps_abs=1e-9, eps_rel=1e-9, max_iter=200000, linsys="inverse")
     x = np.asarray(qp.solve(prob.P, prob.q, prob.A, prob.l, prob.u, settings=tight).x)
-    P, q, A, l, u = (np.asarray(a) for a in (prob.P, prob.q, prob.A, prob.l, prob.u))
-    o = osqp.OSQP()
-    o.setup(sp.csc_matrix(np.triu(P)), q, sp.csc_matrix(A), np.maximum(l, -1e30), np.minimum(u, 1e30),
-            verbose=False, eps_abs=1e-9, eps_rel=1e-9, max_iter=200000, polishing=True)
-    ref = o.solve()
+    ref = _osqp_reference(prob)
     nu = cassie.index.nu
     np.testing.assert_allclose(x[:nu], ref.x[:nu], atol=1e-4 * max(1.0, np.abs(ref.x).max()))
 
