@@ -156,11 +156,6 @@ class CassieConfig:
     w_chatter: float = spec(0.0, 0.0, 100.0, "CLF-QP weight on the torque change from the previous "
                             "tick, ½ w ‖τ − τ_prev‖² (Xiong's Cassie controller has such a term; 0: none)",
                             "1/(N m)²")
-    dob_bandwidth: float = spec(0.0, 0.0, 1000.0, "bandwidth of the output-acceleration disturbance "
-                                "observer on the pelvis orientation and COM height rows: a first-order "
-                                "low-pass of the measured minus the CLF-QP model's acceleration, "
-                                "subtracted from the desired acceleration (0: the estimate stays 0, "
-                                "the paper's controller); beyond the paper", "rad/s")
     shin_damping: float = spec(0.1, 0.0, 100.0, "viscous damping of the simulated shin leaf springs "
                                "(Agility's Cassie model: 0.1)", "N m s/rad")
     heel_damping: float = spec(0.0, 0.0, 100.0, "viscous damping of the simulated heel leaf springs "

@@ -32,7 +32,7 @@ import numpy as np
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax.plants import Plant
 from hlip_jax.plants.base import StepCommand, StepResult, push_table
-from hlip_jax.plants.cassie import clfqp, control, model, observer, outputs, realism, tick
+from hlip_jax.plants.cassie import clfqp, control, model, outputs, realism, tick
 
 cassie = tick.cassie
 #: ``fold_in`` index of the sensing noise's PRNG stream: far from the split indices (0, 1, 2)
@@ -54,7 +54,6 @@ class Gait(NamedTuple):
     damping: jax.Array         # (4,) simulated leaf-spring damping, left shin, left heel, right
                                # shin, right heel [N m s/rad]
     hold_unsolved: jax.Array   # 1.0: an unsolved CLF-QP keeps the previous torques, 0.0: last iterate
-    dob_gain: jax.Array        # low-pass gain α of the disturbance observer per tick (0: none)
     gains: clfqp.Gains
 
 
@@ -83,8 +82,7 @@ def make_gait(cfg=None) -> Gait:
              step_length_max=f(cfg.step_length_max), step_width_min=f(cfg.step_width_min),
              step_width_max=f(cfg.step_width_max),
              damping=np.array([cfg.shin_damping, cfg.heel_damping] * 2, float),
-             hold_unsolved=f(cfg.qp_fallback == "hold"),
-             dob_gain=f(observer.alpha(cfg.dob_bandwidth, control.CONTROL_DT)), gains=clfqp.make_gains(omega, weight=weight, w_chatter=cfg.w_chatter))
+             hold_unsolved=f(cfg.qp_fallback == "hold"), gains=clfqp.make_gains(omega, weight=weight, w_chatter=cfg.w_chatter))
     _GAIT_CACHE[cfg] = g
     return g
 
@@ -108,7 +106,6 @@ class State(NamedTuple):
     yaw: jax.Array           # pelvis heading target at the current SSP⁻ [rad]
     land_xy: jax.Array       # (2,) where the landing foot's centre was aimed [m]
     key: jax.Array
-    obs: observer.Observer   # output-acceleration disturbance estimate
     real: realism.RealState | None  # what the non-ideal stages carry from step to step
 
 
@@ -184,8 +181,7 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     real = None if params is None or params.real is None else \
         realism.init_state(c.index.nu, terms.com_vel, jax.random.fold_in(key, SENSING_STREAM), dt)
     return State(d=d, warm=control.warm_zeros(c, dt), time=jnp.zeros((), dt),
-                 yaw=outputs.wrap(th), land_xy=feet[0, :2], key=key, obs=observer.zeros(dt),
-                 real=real)
+                 yaw=outputs.wrap(th), land_xy=feet[0, :2], key=key, real=real)
 
 
 def _floats_as(tree, dt):
@@ -247,7 +243,7 @@ def _first_tick(ctx: tick.Context, state: State) -> tick.TickState:
                           sw_offset=jnp.zeros(2, dt), u_last=ctx.cmd.u_hlip_next,
                           touch=jnp.zeros((), jnp.int32),
                           fell=~jnp.asarray(ctx.cmd.live, bool),   # a dead step idles throughout
-                          gap=jnp.full(2, jnp.inf, dt), obs=state.obs, real=state.real)
+                          gap=jnp.full(2, jnp.inf, dt), real=state.real)
 
 
 def _prepare(params: Params, state: State, cmd: StepCommand, physics: str = "jax"):
@@ -268,7 +264,7 @@ def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState
     x_est = x_r if ctx.real is None else _estimated_state(ctx, s)
     new = State(d=s.d, warm=s.warm, time=state.time + s.t_step,
                 yaw=outputs.wrap(cmd.heading), land_xy=st_xy + s.u_last + s.sw_offset + du_err,
-                key=key, obs=s.obs, real=s.real)
+                key=key, real=s.real)
     return new, StepResult(x_robot=x_r, x_est=x_est, u_robot=sw_xy - st_xy, failed=failed,
                            duration=s.t_step, leg_gap=s.gap)
 

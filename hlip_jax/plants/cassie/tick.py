@@ -17,10 +17,8 @@ A tick is
     s     = lift_off(ctx, s, terms)               first SSP tick: record the swing foot pose
     cts   = contacts(ctx, s, dm, terms)           contact set and touchdown detection
     u_des = stepping_target(ctx, s, terms)        H-LIP stepping law, step limits
-    meas  = output_state(dm, terms)               outputs, their velocities and Jacobians
-    s     = observe(ctx, s, meas)                 output-acceleration disturbance estimate
-    des   = desired_outputs(ctx, s, terms, cts, u_des), less the estimate (:mod:`observer`)
-    res   = clf_qp(ctx, s, meas, terms, cts, des) torques (passive feet on the ground)
+    des   = desired_outputs(ctx, s, terms, cts, u_des)
+    res   = clf_qp(ctx, s, dm, terms, cts, des)   torques (passive feet on the ground)
     tau, s = actuate(ctx, s, res.tau)             control rate, latency, motor lag and curve
     d     = physics(ctx, s, tau)                  pushes, step noise, two MJX steps
     s     = advance(ctx, s, cts, u_des, res, d)   phase clock, touchdown → end of step
@@ -63,7 +61,7 @@ import numpy as np
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax import hlip
 from hlip_jax.plants.base import StepCommand
-from hlip_jax.plants.cassie import clfqp, collisions, control, dynamics, model, observer, outputs, realism
+from hlip_jax.plants.cassie import clfqp, collisions, control, dynamics, model, outputs, realism
 
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
 TOUCHDOWN_TICKS = 3       # consecutive touching ticks that detect a touchdown (bounce filter)
@@ -125,7 +123,6 @@ class TickState(NamedTuple):
     fell: jax.Array          # bool
     gap: jax.Array           # (2,) smallest feet and lower-leg clearances so far this step
                              # (:mod:`collisions`; the true robot) [m]
-    obs: observer.Observer   # output-acceleration disturbance estimate (:mod:`observer`)
     real: realism.RealState | None  # torque queue, motor lag, velocity estimate, noise key
 
 
@@ -339,30 +336,20 @@ def desired_outputs(ctx: Context, s: TickState, terms, cts: Contacts, u_des) -> 
     return outputs.Desired(y=y, ydot=yd, yddot=ydd, R=outputs.rot_z(yaw_p), mask=mask)
 
 
-def output_state(dm: mjx.Data, terms) -> outputs.Measured:
-    """The 16 outputs, their velocities and Jacobians at the measured state."""
-    return outputs.measure(terms, dm.qvel, cassie().index.root_dof)
-
-
-def observe(ctx: Context, s: TickState, meas: outputs.Measured) -> TickState:
-    """The disturbance estimate after this tick's measurement (:func:`observer.update`)."""
-    obs = observer.update(s.obs, meas.ydot, ctx.gait.dob_gain, control.CONTROL_DT)
-    return s._replace(obs=_if_running(s, obs, s.obs))
-
-
-def clf_qp(ctx: Context, s: TickState, meas: outputs.Measured, terms, cts: Contacts,
+def clf_qp(ctx: Context, s: TickState, dm: mjx.Data, terms, cts: Contacts,
            des: outputs.Desired, settings: clfqp.qp.Settings):
     """CLF-QP torques; the foot motor of a foot in the contact set is passive (τ = 0).
-    Returns (clfqp.Result, dynamics.Condensed)."""
+    Returns (clfqp.Result, outputs.Measured, dynamics.Condensed)."""
     c = cassie()
     lo, hi = ctx.tau_lo, ctx.tau_hi
     for f in (0, 1):
         motor = c.index.actuators[f][4]
         lo = lo.at[motor].set(jnp.where(cts.foot[f], 0.0, lo[motor]))
         hi = hi.at[motor].set(jnp.where(cts.foot[f], 0.0, hi[motor]))
+    meas = outputs.measure(terms, dm.qvel, c.index.root_dof)
     cond = dynamics.condense(terms, c.actuation, cts.sites, dynamics.spring_dofs(c))
     return clfqp.solve(meas, des, cond, cts.sites, lo, hi, ctx.gait.gains, s.warm, settings,
-                       fallback=ctx.gait.hold_unsolved > 0.5, active=running(s)), cond
+                       fallback=ctx.gait.hold_unsolved > 0.5, active=running(s)), meas, cond
 
 
 def proximity(s: TickState) -> jax.Array:
@@ -438,10 +425,8 @@ def tick(ctx: Context, s: TickState, settings: Settings):
     s = lift_off(ctx, s, terms)
     cts = contacts(ctx, s, dm, terms)
     u_des = stepping_target(ctx, s, terms)
-    meas = output_state(dm, terms)
-    s = observe(ctx, s, meas)
-    des = observer.compensate(desired_outputs(ctx, s, terms, cts, u_des), s.obs)
-    res, cond = clf_qp(ctx, s, meas, terms, cts, des, settings.qp)
+    des = desired_outputs(ctx, s, terms, cts, u_des)
+    res, meas, cond = clf_qp(ctx, s, dm, terms, cts, des, settings.qp)
     tau, s = actuate(ctx, s, res.tau)
     d_new = physics(ctx, s, tau, settings.physics, settings.robots)
     e, _ = outputs.errors(meas, des)
@@ -452,8 +437,7 @@ def tick(ctx: Context, s: TickState, settings: Settings):
                   contact=cts.sites, status=res.status, pelvis=s.d.qpos[:7], phase=s.phase,
                   u_des=u_des, y_err=e, grf=grf, spring=s.d.qpos[realism.layout(cassie()).spring_qpos],
                   gap=gap, ydot=meas.ydot, ydd_model=ydd_model)
-    s = s._replace(gap=jnp.where(running(s), jnp.minimum(s.gap, gap), s.gap),
-                   obs=_if_running(s, observer.record(s.obs, meas.ydot, ydd_model), s.obs))
+    s = s._replace(gap=jnp.where(running(s), jnp.minimum(s.gap, gap), s.gap))
     return advance(ctx, s, cts, u_des, res, d_new), log
 
 
