@@ -72,9 +72,10 @@ def physics(cassie: model.Cassie, d: mjx.Data, ctrl, force, mx=None, backend: st
     if backend == "warp":
         from hlip_jax.plants.cassie import warp_physics
         return warp_physics.step(cassie.mj_model, mx, d, SUBSTEPS, robots)
-    for _ in range(SUBSTEPS):
-        d = mjx.step(mx, d)
-    return d
+    # traced once and unrolled when lowered: tracing the MJX step SUBSTEPS times made up a
+    # third of the closed loop's tracing (which every run pays, compilation cache or not),
+    # while a rolled loop would cost the GPU a loop trip per substep (BENCHMARKS.md)
+    return jax.lax.fori_loop(0, SUBSTEPS, lambda _, d: mjx.step(mx, d), d, unroll=True)
 
 
 def zero_torque_rollout(cassie: model.Cassie, d: mjx.Data, n_ticks: int) -> mjx.Data:
