@@ -11,8 +11,13 @@ e⁺ = A_cl e + d (d = w + B δu, the S2S residual plus the foot-placement error
    field, :func:`split_by_value`).  A group of one run falls back to a time split of that
    run (:func:`time_halves`), labelled ``split = "time"``: it measures whether one run's
    extremes are stationary, not whether E predicts other runs.
-2. W from the training runs' disturbance samples d (:func:`box_w`, :func:`conformal_box_w`),
-   E = mRPI(A_cl, W) (:func:`hlip_jax.invariant.mrpi`, outer set F_s/(1−α)).
+2. W from the disturbance samples d of the training runs that walked to the end
+   (:func:`box_w`, :func:`conformal_box_w`), E = mRPI(A_cl, W) (:func:`hlip_jax.invariant.mrpi`,
+   outer set F_s/(1−α)).  A run that fell is left out of W (``train_fell`` counts them): its
+   last steps are the controller's failure, not a disturbance the stepping law met while
+   walking, and a single fall would otherwise set W (and E) for every run of its group.  The
+   test runs keep their falls: a test run's errors count up to its fall (``test_fell``), so a
+   fall that leaves E lowers the coverage.
    Push steps (a step k whose interval [t_k, t_{k+1}] overlaps a configured push) are left out
    of W by default ("box", "quantile"); "box_with_push" keeps them.  The test errors at or
    after a run's first push are also counted on their own (``push_coverage``).
@@ -59,14 +64,16 @@ __all__ = ["RunSamples", "conformal_rank", "conformal_box_w", "box_w", "split_by
 #: "quantile" = split-conformal box at level q, push steps excluded.
 W_METHODS = ("box", "box_with_push", "quantile")
 
-#: coverage.csv columns, in order: train_samples = disturbance samples W was estimated from
+#: coverage.csv columns, in order: train_runs / test_runs = runs on each side, train_fell /
+#: test_fell = those that fell (the training ones are left out of W); train_samples =
+#: disturbance samples W was estimated from
 #: (push steps left out unless w_method = "box_with_push"); test_samples = test errors; covered
 #: = those inside E; ci_low, ci_high = 95 % Clopper–Pearson; insample_coverage = the training
 #: errors in the same E (consistency); push_* = test errors at or after a push; w_lo, w_hi =
 #: the W box (space-separated, state order); e_*_max / err_*_max = E's half-extent / the
 #: largest |test error| per state coordinate [m, m, m/s]; state = "[c, p, v]" or "[p, v]".
 COLUMNS = ("group", "plane", "w_method", "q", "split", "train_runs", "test_runs",
-           "train_samples", "test_samples", "covered", "coverage", "ci_low", "ci_high",
+           "train_fell", "test_fell", "train_samples", "test_samples", "covered", "coverage", "ci_low", "ci_high",
            "insample_coverage", "push_test_samples", "push_coverage", "w_lo", "w_hi",
            "e_c_max", "err_c_max", "e_p_max", "err_p_max", "e_v_max", "err_v_max", "state",
            "note")
@@ -78,7 +85,8 @@ class RunSamples(NamedTuple):
     e (K, 2, n) errors; emask (K,) counted errors (alive); epush (K,) errors at or after the
     run's first push; d (K−1, 2, n) error-system disturbances, e_{k+1} = A_cl e_k + d_k;
     dmask (K−1,) counted disturbances (both ends alive); dpush (K−1,) steps whose interval
-    [t_k, t_{k+1}] overlaps a push; ec (K, 2) the COM position error c [m] (kept when n = 2)."""
+    [t_k, t_{k+1}] overlaps a push; ec (K, 2) the COM position error c [m] (kept when n = 2);
+    fell: the run fell (its step log ends before the run's duration)."""
     e: np.ndarray
     emask: np.ndarray
     epush: np.ndarray
@@ -86,6 +94,7 @@ class RunSamples(NamedTuple):
     dmask: np.ndarray
     dpush: np.ndarray
     ec: np.ndarray
+    fell: bool = False
 
 
 def conformal_rank(n: int, q: float) -> int:
@@ -147,11 +156,11 @@ def split_by_value(values: Sequence, train_values: Sequence):
 def time_halves(run: RunSamples) -> tuple[RunSamples, RunSamples]:
     """A single run split in time: training disturbances d_k with k + 1 < h and errors k < h,
     test errors k ≥ h, h = half the counted errors (the per-run held-out split of
-    :mod:`hlip_jax.store`)."""
+    :mod:`hlip_jax.store`).  A fall is the run's last step, so only the test half holds it."""
     h = int(run.emask.sum()) // 2
     kd = np.arange(run.dmask.size)
     ke = np.arange(run.emask.size)
-    train = run._replace(dmask=run.dmask & (kd + 1 < h), emask=run.emask & (ke < h))
+    train = run._replace(dmask=run.dmask & (kd + 1 < h), emask=run.emask & (ke < h), fell=False)
     test = run._replace(dmask=run.dmask & False, emask=run.emask & (ke >= h))
     return train, test
 
@@ -257,11 +266,15 @@ def group_rows(group: str, A_cl, runs: Sequence[RunSamples], keys: Sequence, pla
         halves = [time_halves(r) for r in runs]
         train, test = [h[0] for h in halves], [h[1] for h in halves]
         split = "time"
-    base = {"group": group, "split": split, "train_runs": len(train), "test_runs": len(test)}
-    if not train or not test:
+    walked = [r for r in train if not r.fell]
+    base = {"group": group, "split": split, "train_runs": len(train), "test_runs": len(test),
+            "train_fell": len(train) - len(walked), "test_fell": sum(bool(r.fell) for r in test)}
+    if not walked or not test:
+        why = "no test run" if train and not test else \
+            "no training run" if not train else "every training run fell: no W"
         return [dict({c: math.nan for c in COLUMNS}, **base, plane=plane, w_method="box",
-                     note="no training run" if not train else "no test run")
-                for plane in planes]
+                     note=why) for plane in planes]
+    train = walked
     has_push = any((r.dmask & r.dpush).any() for r in train)
     methods = [m for m in W_METHODS if m != "box_with_push" or has_push]
     rows = []

@@ -256,6 +256,15 @@ def _ci_text(r: dict) -> str:
             f"[{_fmt(r['ci_low'])}, {_fmt(r['ci_high'])}]")
 
 
+def _runs_text(r: dict) -> str:
+    """'train / test' runs, with how many of each fell where any did."""
+    text = f"{r['train_runs']} / {r['test_runs']}"
+    fell = (r.get("train_fell"), r.get("test_fell"))
+    if any(isinstance(f, int) and f > 0 for f in fell):
+        text += f" (fell {fell[0]} / {fell[1]})"
+    return text
+
+
 def across_run_rows(cov_rows: list[dict]) -> list[list[str]]:
     """Rows of the report's across-run coverage table from ``coverage.csv`` rows."""
     out = []
@@ -266,8 +275,7 @@ def across_run_rows(cov_rows: list[dict]) -> list[list[str]]:
         push = ("–" if not r.get("push_test_samples") else
                 f"{_fmt(r['push_coverage'])} ({r['push_test_samples']})")
         sizes = [f"{_fmt(r[f'e_{c}_max'], 3)} / {_fmt(r[f'err_{c}_max'], 3)}" for c in "cpv"]
-        out.append([r["group"], r["plane"], w, r["split"],
-                    f"{r['train_runs']} / {r['test_runs']}", str(r["test_samples"]),
+        out.append([r["group"], r["plane"], w, r["split"], _runs_text(r), str(r["test_samples"]),
                     _ci_text(r), _fmt(r["insample_coverage"]), push] + sizes)
     return out
 
@@ -280,7 +288,9 @@ ACROSS_NOTE = (
     "each run is its own replicate); 'time': a group of one run, W from its first half of "
     "the steps, tested on the second (stationarity, not prediction). Groups: runs of one "
     "path with the same plant, S2S model and gain (the label lists the swept values they "
-    "share). W 'box' leaves out the steps that overlap a push ('box incl. push steps' "
+    "share). W comes from the training runs that walked to the end (runs that fell are "
+    "counted as 'fell' and left out of W; a fallen test run's errors count up to its fall). "
+    "W 'box' leaves out the steps that overlap a push ('box incl. push steps' "
     "keeps them); 'conformal q-box': per coordinate the ⌈(n+1)q⌉-th smallest training |d|, "
     "which covers a new exchangeable disturbance sample with probability ≥ q per coordinate "
     "(not jointly, and not a guarantee for the errors in E). In-sample coverage (training "

@@ -454,7 +454,9 @@ def _run_samples(z: dict, j: int, cfg):
     Acl = np.stack([A + np.outer(B, Kg[p]) for p in range(2)])
     key = (cfg.swept.get("path", ""), cfg.plant, frame,
            np.round(np.concatenate([A.ravel(), B.ravel(), Kg.ravel()]), 12).tobytes())
-    return key, Acl, frame, cov.RunSamples(e, mask, epush & mask, w, wmask, dpush & wmask, ec)
+    fell = bool(np.asarray(z["fail_step"][j]) >= 0)
+    return key, Acl, frame, cov.RunSamples(e, mask, epush & mask, w, wmask, dpush & wmask, ec,
+                                           fell)
 
 
 def _group_label(cfgs: list) -> str:

@@ -112,6 +112,37 @@ def test_group_rows_single_run_is_labelled_time_split():
         assert r["ci_low"] <= r["coverage"] <= r["ci_high"]
 
 
+def test_fallen_training_runs_are_left_out_of_w():
+    """W (the box of the training disturbances) is that of the walked training runs alone: a
+    fallen run whose disturbances are 100× larger changes nothing but ``train_fell``; the
+    fallen test run stays in the test samples, and its large errors fall outside E."""
+    Acl = np.stack([np.diag([0.5, 0.3, 0.2])] * 2)
+    walked_tr, walked_te = _run(seed=1), _run(seed=2)
+    big = _run(seed=3)
+    fallen = big._replace(d=100 * big.d, e=100 * big.e, fell=True)
+    ref = cov.group_rows("g", Acl, [walked_tr, walked_te], [1, 2], ("x", "y"))
+    rows = cov.group_rows("g", Acl, [walked_tr, fallen, walked_te, fallen], [1, 1, 2, 2],
+                          ("x", "y"))
+    for r0, r in zip(ref, rows):
+        assert (r["train_runs"], r["train_fell"], r["test_runs"], r["test_fell"]) == (2, 1, 2, 1)
+        assert r["w_lo"] == r0["w_lo"] and r["w_hi"] == r0["w_hi"]      # same W, exactly
+        assert r["train_samples"] == r0["train_samples"]
+        assert r["test_samples"] == 2 * r0["test_samples"]
+        assert r["covered"] < r["test_samples"] and r["coverage"] < r0["coverage"]
+    only_fallen = cov.group_rows("g", Acl, [fallen, walked_te], [1, 2], ("x", "y"))
+    assert all(math.isnan(r["coverage"]) and "every training run fell" in r["note"]
+               for r in only_fallen)
+
+
+def test_time_split_of_a_fallen_run_trains_on_its_first_half():
+    """A single run that fell: the fall is its last step, so the first half still gives W."""
+    Acl = np.stack([np.diag([0.5, 0.3, 0.2])] * 2)
+    rows = cov.group_rows("g", Acl, [_run(K=40)._replace(fell=True)], [11], ("x", "y"), q=0.5)
+    for r in rows:
+        assert r["split"] == "time" and r["train_fell"] == 0 and r["test_fell"] == 1
+        assert np.isfinite(r["coverage"])
+
+
 def test_group_rows_unstable_gain_says_why():
     Acl = np.stack([np.eye(3) * 1.1] * 2)
     rows = cov.group_rows("g", Acl, [_run(seed=1), _run(seed=2)], [1, 2], ("x", "y"))
