@@ -112,7 +112,9 @@ def _sweep_overrides(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plant", choices=plants.NAMES,
                    help="override the plant of every scenario")
     p.add_argument("--duration", type=_finite_float, metavar="S",
-                   help="override the simulated time of every scenario [s]")
+                   help="override the simulated time of every scenario [s]; a path or grid axis "
+                   "that sets its own duration keeps it (and a batch shares its longest run's "
+                   "step count)")
     p.add_argument("--limit", type=_positive_int, metavar="N",
                    help="keep only the first N scenarios")
     p.add_argument("--physics", choices=("jax", "warp"),

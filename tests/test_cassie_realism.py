@@ -160,6 +160,14 @@ def test_sensing_noise_statistics_and_bias(cassie):
     np.testing.assert_allclose(model.rpy_from_mat(R_rel), [np.deg2rad(5.0), 0, 0], atol=1e-12)
 
 
+def test_touchdown_index_follows_the_config_choices():
+    """Realism.touchdown indexes realism.TOUCHDOWN, whose order must be the config's choices."""
+    field = {f.name: f for f in dataclasses.fields(RealismConfig)}["touchdown"]
+    assert tuple(field.metadata["choices"]) == realism.TOUCHDOWN
+    for name in realism.TOUCHDOWN:
+        assert realism.TOUCHDOWN[int(realism.make(RealismConfig(touchdown=name)).touchdown)] == name
+
+
 def test_spring_touchdown_reads_the_heel_springs(cassie):
     """With touchdown = 'spring' a foot touches exactly when its measured heel spring is
     compressed (negative deflection) beyond the threshold, whatever the sites' heights."""
@@ -250,7 +258,7 @@ def test_config_to_params_and_validation():
     with pytest.raises(ValueError, match="realism: scenario 'scenario' departs from the ideal plant"):
         plant.make_params(cfg, 1)                   # a batch built as ideal carries no realism
     p = plant.make_params(cfg, 1, non_ideal=True)
-    assert p.real.latency == 3 and bool(p.real.spring_touchdown) and bool(p.real.noisy)
+    assert p.real.latency == 3 and realism.TOUCHDOWN[int(p.real.touchdown)] == "spring" and bool(p.real.noisy)
     np.testing.assert_allclose(p.real.imu_bias, [0.0, np.deg2rad(2.0)])
     np.testing.assert_allclose(p.real.slope, [0.0, np.deg2rad(-4.0)])
     assert plant.make_params(ScenarioConfig(plant="cassie"), 1).real is None

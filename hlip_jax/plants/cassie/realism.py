@@ -67,6 +67,8 @@ from hlip_jax.plants.cassie import dynamics, model
 
 #: longest latency the per-scenario queue holds [ticks]; the config's range stops here
 MAX_LATENCY = 10
+#: touchdown detectors, in the order of :attr:`Realism.touchdown` (``realism.touchdown`` values)
+TOUCHDOWN = ("contact", "spring", "kinematic")
 #: no-load motor speeds [rpm] per motor of a leg (hip roll, yaw, pitch, knee, foot): Agility's
 #: Cassie model (actuator ``user`` values in MuJoCo Menagerie's ``agility_cassie``)
 NO_LOAD_RPM = (2900.0, 2900.0, 1300.0, 1300.0, 5500.0)
@@ -86,8 +88,7 @@ class Realism(NamedTuple):
     imu_rate_noise: jax.Array   # σ_ω [rad/s]
     imu_bias: jax.Array         # (2,) roll, pitch bias b [rad]
     velocity_filter: jax.Array  # τ_v [s], 0 = no filter
-    spring_touchdown: jax.Array  # bool: detect touchdown from the heel springs
-    kinematic_touchdown: jax.Array  # bool: detect touchdown from the measured leg kinematics
+    touchdown: jax.Array        # touchdown detector, index into TOUCHDOWN (int32)
     spring_threshold: jax.Array  # heel-spring compression that counts as contact [rad]
     mass_scale: jax.Array       # s_m
     pelvis_com: jax.Array       # (2,) Δx, Δy of the pelvis COM in the pelvis frame [m]
@@ -119,8 +120,8 @@ def make(cfg) -> Realism:
         joint_rate_noise=f(rad(cfg.joint_rate_noise)), imu_noise=f(rad(cfg.imu_noise)),
         imu_rate_noise=f(rad(cfg.imu_rate_noise)),
         imu_bias=rad(np.array([cfg.imu_bias_roll, cfg.imu_bias_pitch], float)),
-        velocity_filter=f(cfg.velocity_filter), spring_touchdown=np.bool_(cfg.touchdown == "spring"),
-        kinematic_touchdown=np.bool_(cfg.touchdown == "kinematic"),
+        velocity_filter=f(cfg.velocity_filter),
+        touchdown=np.int32(TOUCHDOWN.index(cfg.touchdown)),
         spring_threshold=f(rad(cfg.spring_threshold)), mass_scale=f(cfg.mass_scale),
         pelvis_com=np.array([cfg.pelvis_com_x, cfg.pelvis_com_y], float),
         stiffness_scale=f(cfg.spring_stiffness_scale), friction=f(cfg.friction),
@@ -223,8 +224,7 @@ def touching(c: model.Cassie, real: Realism, d_true, d_meas, site_pos, gap: floa
     heel = -d_meas.qpos[layout(c).heel_qpos] > real.spring_threshold    # compressed by the load
     foot_low = jnp.min(site_pos[:, 2].reshape(2, 2), axis=1)                # (2,) per foot
     kinematic = jnp.repeat(foot_low - jnp.min(foot_low) < gap, 2)
-    return jnp.where(real.spring_touchdown, jnp.repeat(heel, 2),
-                     jnp.where(real.kinematic_touchdown, kinematic, oracle))
+    return jnp.stack([oracle, jnp.repeat(heel, 2), kinematic])[real.touchdown]
 
 
 def motor_limit(real: Realism, tau, omega, tau_max, no_load):

@@ -246,7 +246,7 @@ def contacts(ctx: Context, s: TickState, dm: mjx.Data, terms) -> Contacts:
         dsp_set = touching
     else:
         touching = realism.touching(cassie(), ctx.real, s.d, dm, terms.site_pos, CONTACT_GAP)
-        dsp_set = touching | ctx.real.spring_touchdown
+        dsp_set = touching | (ctx.real.touchdown == realism.TOUCHDOWN.index("spring"))
     in_dsp = s.phase == DSP
     stance_site = _SIDE_OF_SITE == ctx.new_st
     on = jnp.where(in_dsp, dsp_set, stance_site)
