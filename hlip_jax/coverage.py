@@ -73,8 +73,8 @@ W_METHODS = ("box", "box_with_push", "quantile")
 #: the W box (space-separated, state order); e_*_max / err_*_max = E's half-extent / the
 #: largest |test error| per state coordinate [m, m, m/s]; state = "[c, p, v]" or "[p, v]".
 COLUMNS = ("group", "plane", "w_method", "q", "split", "train_runs", "test_runs",
-           "train_fell", "test_fell", "train_samples", "test_samples", "covered", "coverage", "ci_low", "ci_high",
-           "insample_coverage", "push_test_samples", "push_coverage", "w_lo", "w_hi",
+           "train_fell", "test_fell", "train_samples", "test_samples", "covered", "coverage",
+           "ci_low", "ci_high", "insample_coverage", "push_test_samples", "push_coverage", "w_lo", "w_hi",
            "e_c_max", "err_c_max", "e_p_max", "err_p_max", "e_v_max", "err_v_max", "state",
            "note")
 
