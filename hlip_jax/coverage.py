@@ -74,9 +74,9 @@ W_METHODS = ("box", "box_with_push", "quantile")
 #: largest |test error| per state coordinate [m, m, m/s]; state = "[c, p, v]" or "[p, v]".
 COLUMNS = ("group", "plane", "w_method", "q", "split", "train_runs", "test_runs",
            "train_fell", "test_fell", "train_samples", "test_samples", "covered", "coverage",
-           "ci_low", "ci_high", "insample_coverage", "push_test_samples", "push_coverage", "w_lo", "w_hi",
-           "e_c_max", "err_c_max", "e_p_max", "err_p_max", "e_v_max", "err_v_max", "state",
-           "note")
+           "ci_low", "ci_high", "insample_coverage", "push_test_samples", "push_coverage",
+           "w_lo", "w_hi", "e_c_max", "err_c_max", "e_p_max", "err_p_max", "e_v_max",
+           "err_v_max", "state", "note")
 
 
 class RunSamples(NamedTuple):
@@ -269,9 +269,9 @@ def group_rows(group: str, A_cl, runs: Sequence[RunSamples], keys: Sequence, pla
     walked = [r for r in train if not r.fell]
     base = {"group": group, "split": split, "train_runs": len(train), "test_runs": len(test),
             "train_fell": len(train) - len(walked), "test_fell": sum(bool(r.fell) for r in test)}
-    if not walked or not test:
-        why = "no test run" if train and not test else \
-            "no training run" if not train else "every training run fell: no W"
+    why = ("no training run" if not train else "no test run" if not test else
+           "every training run fell: no W" if not walked else None)
+    if why is not None:
         return [dict({c: math.nan for c in COLUMNS}, **base, plane=plane, w_method="box",
                      note=why) for plane in planes]
     train = walked
