@@ -106,6 +106,10 @@ class DisturbanceConfig:
     t_ssp: float = spec(0.0, 0.0, 1.0, "plant SSP duration, 0 = same as the planner's", "s")
     t_dsp: float = spec(0.0, 0.0, 0.5, "plant DSP duration, 0 = same as the planner's", "s")
     mass: float = spec(33.0, 1.0, 500.0, "robot mass the pushes act on", "kg")
+    step_limits: bool = spec(False, doc="clip the H-LIP plant's steps to a legged robot's reach: the "
+                             "Cassie controller's swing-target limits cassie.step_length_max (along "
+                             "the heading) and cassie.step_width_min..step_width_max (across it, on "
+                             "the swing side), as the Cassie plant clips its own steps")
     pushes: tuple = ()
 
 

@@ -73,8 +73,8 @@ def check(cfg) -> Optional[str]:
         d0 = type(d)()
         for f in HLIP_ONLY_DISTURBANCES:
             if getattr(d, f) != getattr(d0, f):
-                return (f"disturbance.{f}: {getattr(d, f):g} acts on the H-LIP plant only; "
-                        f"allowed with plant = 'cassie': {getattr(d0, f):g} (Cassie takes "
+                return (f"disturbance.{f}: {_show(getattr(d, f))} acts on the H-LIP plant only; "
+                        f"allowed with plant = 'cassie': {_show(getattr(d0, f))} (Cassie takes "
                         "disturbance.noise_v, disturbance.step_error and disturbance.pushes)")
         if cfg.cassie.physics == "warp" and not warp_installed():
             return ("cassie.physics: 'warp' needs the warp-lang package (pip install "
@@ -87,5 +87,11 @@ def warp_installed() -> bool:
     return importlib.util.find_spec("warp") is not None
 
 
-#: disturbance fields the Cassie plant has no counterpart for (its model is the model)
-HLIP_ONLY_DISTURBANCES = ("noise_p", "z0", "t_ssp", "t_dsp", "mass")
+#: disturbance fields the Cassie plant has no counterpart for (its model is the model; its legs
+#: always limit its steps)
+HLIP_ONLY_DISTURBANCES = ("noise_p", "z0", "t_ssp", "t_dsp", "mass", "step_limits")
+
+
+def _show(v) -> str:
+    """A config value as a sweep file writes it (true/false for booleans)."""
+    return str(v).lower() if isinstance(v, bool) else f"{v:g}"

@@ -26,6 +26,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 
@@ -73,3 +74,14 @@ def push_table(pushes, n_push: int):
         a = np.deg2rad(p.direction)
         force[i] = p.force * np.array([np.cos(a), np.sin(a)])
     return start, end, force
+
+
+def clip_step(u, heading, swing, length_max, width_min, width_max):
+    """Step ``u`` (2,) [m] (world x, y) with its length along ``heading`` [rad] clipped to
+    ±length_max and its width across it to [width_min, width_max] on the ``swing`` foot's side
+    (0 left: +, 1 right: −) — the reach of a legged robot whose legs must not cross."""
+    ch, sh = jnp.cos(heading), jnp.sin(heading)
+    sgn = jnp.where(swing == 0, 1.0, -1.0)
+    along = jnp.clip(ch * u[0] + sh * u[1], -length_max, length_max)
+    across = sgn * jnp.clip(sgn * (-sh * u[0] + ch * u[1]), width_min, width_max)
+    return jnp.stack([ch * along - sh * across, sh * along + ch * across])

@@ -7,7 +7,10 @@ planner's: *model mismatch*).  A walking step from SSP⁻_k:
 * the step u (placed at SSP⁻_k) takes effect: p ← p − u   (c unchanged)
 * SSP for T_S:   p̈ = λ² p + a(t)
 * additive S2S noise (uniform box, seeded): p ← p + δp, c ← c + δp, v ← v + δv
-* the next step u_{k+1} = u_HLIP,k+1 + K (x_robot,k+1 − x_HLIP,k+1) + δu (placement error).
+* the next step u_{k+1} = u_HLIP,k+1 + K (x_robot,k+1 − x_HLIP,k+1) + δu (placement error),
+  with ``disturbance.step_limits`` clipped to a legged robot's reach first
+  (:func:`hlip_jax.plants.base.clip_step` with the ``cassie.*`` swing-target limits; the
+  point-foot H-LIP otherwise steps anywhere, crossing its own stance foot if the law says so).
 
 The global COM c moves with p inside the phases (c − p is the stance-foot position).
 Pushes are piecewise-constant forces over [start, start + duration); each phase is split at the
@@ -31,7 +34,7 @@ import numpy as np
 
 from hlip_jax.config import ScenarioConfig
 from hlip_jax.plants import Plant
-from hlip_jax.plants.base import StepCommand, StepResult, push_table
+from hlip_jax.plants.base import StepCommand, StepResult, clip_step, push_table
 
 
 class Params(NamedTuple):
@@ -45,6 +48,8 @@ class Params(NamedTuple):
     push_end: jax.Array     # (P,) [s]
     push_acc: jax.Array     # (P, 2) F/m in world x, y [m/s²]
     fall_distance: jax.Array  # [m]
+    reach: jax.Array        # (3,) step limits [length_max, width_min, width_max] [m]
+                            # (±inf: unlimited, :func:`clip_step` is then the identity)
 
 
 class State(NamedTuple):
@@ -63,7 +68,16 @@ def make_params(cfg: ScenarioConfig, max_pushes: int) -> Params:
         z0=np.float64(d.z0 or h.z0), t_ssp=np.float64(d.t_ssp or h.t_ssp),
         t_dsp=np.float64(d.t_dsp if d.t_dsp else h.t_dsp), g=np.float64(h.g),
         noise=np.array([d.noise_p, d.noise_v]), step_error=np.float64(d.step_error),
-        push_start=start, push_end=end, push_acc=acc, fall_distance=np.float64(1.0))
+        push_start=start, push_end=end, push_acc=acc, fall_distance=np.float64(1.0),
+        reach=_reach(cfg))
+
+
+def _reach(cfg: ScenarioConfig) -> np.ndarray:
+    """[length_max, width_min, width_max] [m] of the plant's steps (``disturbance.step_limits``)."""
+    c = cfg.cassie
+    if cfg.disturbance.step_limits:
+        return np.array([c.step_length_max, c.step_width_min, c.step_width_max])
+    return np.array([np.inf, -np.inf, np.inf])
 
 
 def _push_pieces(params: Params, t0, duration):
@@ -124,7 +138,8 @@ def step(params: Params, state: State, cmd: StepCommand):
     v2 = v2 + dx[:, 1]
     x_next = jnp.stack([foot + p2, p2, v2], axis=-1)
     du = jax.random.uniform(k_step, (2,), p.dtype, -1.0, 1.0) * params.step_error
-    u_next = stepping_law(cmd.u_hlip_next, cmd.gain, x_next, cmd.x_hlip_next) + du
+    u_law = stepping_law(cmd.u_hlip_next, cmd.gain, x_next, cmd.x_hlip_next)
+    u_next = clip_step(u_law, cmd.heading, cmd.stance, *params.reach) + du
     failed = ~jnp.all(jnp.isfinite(x_next)) | jnp.any(jnp.abs(p2) > params.fall_distance)
     new = State(x=x_next, u=u_next, time=state.time + params.t_dsp + params.t_ssp, key=key)
     return new, StepResult(x_robot=x_next, x_est=x_next, u_robot=u_next, failed=failed,

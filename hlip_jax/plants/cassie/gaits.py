@@ -61,11 +61,15 @@ def preset(name: str) -> dict[str, object]:
 
 def fill(raw: dict) -> dict:
     """``raw`` (a scenario's nested settings table) with every field of its gait preset that it
-    does not set filled in; tables without ``plant = "cassie"`` are returned unchanged."""
-    if raw.get("plant") != "cassie":
-        return raw
+    does not set filled in.  The preset is the one ``cassie.gait`` names, on any plant (so a
+    Cassie sweep run with ``--plant hlip`` keeps the gait's H-LIP timing, COM height, gain and
+    step limits: a like-for-like comparison), or :data:`DEFAULT` for ``plant = "cassie"``;
+    other tables are returned unchanged."""
     cassie = raw.get("cassie", {})
-    name = cassie.get("gait", DEFAULT) if isinstance(cassie, dict) else DEFAULT
+    named = isinstance(cassie, dict) and "gait" in cassie
+    if raw.get("plant") != "cassie" and not named:
+        return raw
+    name = cassie["gait"] if named else DEFAULT
     out = {k: dict(v) if isinstance(v, dict) else v for k, v in raw.items()}
     for dotted, value in preset(name).items():
         table, key = dotted.split(".")

@@ -60,7 +60,7 @@ import numpy as np
 
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax import hlip
-from hlip_jax.plants.base import StepCommand
+from hlip_jax.plants.base import StepCommand, clip_step
 from hlip_jax.plants.cassie import clfqp, collisions, control, dynamics, model, outputs, realism
 
 CONTACT_GAP = 0.004       # [m] sphere bottom this close to the floor counts as touching
@@ -185,11 +185,8 @@ def flow_to_impact(x, tau, z0):
 def heading_clip(u, heading, sw, gait):
     """Step ``u`` (2,) [m] with its length along ``heading`` clipped to ±step_length_max and its
     width across it to [step_width_min, step_width_max] on the swing side (left: +)."""
-    ch, sh = jnp.cos(heading), jnp.sin(heading)
-    sgn = jnp.where(sw == 0, 1.0, -1.0)
-    along = jnp.clip(ch * u[0] + sh * u[1], -gait.step_length_max, gait.step_length_max)
-    across = sgn * jnp.clip(sgn * (-sh * u[0] + ch * u[1]), gait.step_width_min, gait.step_width_max)
-    return jnp.stack([ch * along - sh * across, sh * along + ch * across])
+    return clip_step(u, heading, sw, gait.step_length_max, gait.step_width_min,
+                     gait.step_width_max)
 
 
 # ----------------------------------------------------------------------------- stages
