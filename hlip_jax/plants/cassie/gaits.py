@@ -17,7 +17,7 @@ from __future__ import annotations
 PRESETS: dict[str, dict[str, object]] = {
     "paper": {
         "hlip.z0": 0.864,
-        "hlip.t_ssp": 0.2497,
+        "hlip.t_ssp": 0.2,
         "hlip.t_dsp": 0.0532,
         "mpc.step_width_min": 0.1296,
         "gain.type": "lqr",
