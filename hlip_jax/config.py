@@ -220,6 +220,9 @@ class RealismConfig:
                            "(the model's: 1.0)")
     slope_x: float = spec(0.0, -15.0, 15.0, "ground slope rising along world x", "deg")
     slope_y: float = spec(0.0, -15.0, 15.0, "ground slope rising along world y", "deg")
+    step_height: float = spec(0.0, -0.1, 0.1, "height of a step in the ground at world x = step_x "
+                              "(+: up, -: down; the controller does not know it)", "m")
+    step_x: float = spec(2.0, 0.3, 100.0, "world x at which the ground steps", "m")
 
 
 @dataclass(frozen=True)

@@ -160,6 +160,8 @@ class Shapes(NamedTuple):
     t_step: float = 0.0      # longest step span [s] (Plant.step_span; the Cassie tick budget)
     non_ideal: bool = False  # a scenario departs from the ideal robot (``realism``): every
                              # robot of the batch carries the realism data (compiled in)
+    terrain: bool = False    # a scenario's ground has a step (``realism.step_height``): every
+                             # robot of the batch walks on the scene with the terrain block
 
 
 def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
@@ -172,7 +174,8 @@ def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
         n_pushes=max(1, max(len(c.disturbance.pushes) for c in configs)),
         t_final=max((K + horizon + 2) * (c.hlip.t_ssp + c.hlip.t_dsp) for c in configs),
         t_step=max(_step_span(c) for c in configs),
-        non_ideal=any(c.realism != RealismConfig() for c in configs))
+        non_ideal=any(c.realism != RealismConfig() for c in configs),
+        terrain=any(c.realism.step_height != 0.0 for c in configs))
 
 
 def _step_span(c: ScenarioConfig) -> float:
@@ -221,7 +224,8 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
         path = _path_of(c, t_final, n_samples)
         start = np.array([float(path.x[0]), float(path.y[0])])
         x0 = np.stack([np.array([start[0], 0.0, 0.0]), np.array([start[1], 0.0, 0.0])])
-        plant = plants.load(c.plant).make_params(c, n_push, shapes.t_step, shapes.non_ideal)
+        plant = plants.load(c.plant).make_params(c, n_push, shapes.t_step, shapes.non_ideal,
+                                                 shapes.terrain)
         rows.append(Scenario(mpc=mp, path=path, gain=stepping_gain(c), z0=c.hlip.z0,
                              t_ssp=c.hlip.t_ssp, t_dsp=c.hlip.t_dsp, x0=x0,
                              n_steps=np.int32(n_steps_of(c)), tube=np.bool_(m.mode == "tube"),

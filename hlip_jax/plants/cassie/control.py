@@ -42,10 +42,11 @@ STAND_OMEGA = np.array([8.0, 8.0, 8.0, 8.0, 4.0, 4.0] + [10.0] * 10)
 STAND_GAINS = clfqp.make_gains(STAND_OMEGA)
 
 
-def canonical(cassie: model.Cassie, d: mjx.Data) -> mjx.Data:
-    """``mjx.forward`` once, so every field has the dtype ``mjx.step`` produces (under x64
-    ``put_data`` leaves some contact index fields int32 while ``step`` returns int64)."""
-    return mjx.forward(cassie.mjx_model, d)
+def canonical(cassie: model.Cassie, d: mjx.Data, mx=None) -> mjx.Data:
+    """``mjx.forward`` once (on ``mx``, default the robot's own model), so every field has the
+    dtype ``mjx.step`` produces (under x64 ``put_data`` leaves some contact index fields int32
+    while ``step`` returns int64)."""
+    return mjx.forward(cassie.mjx_model if mx is None else mx, d)
 
 
 def control(cassie: model.Cassie, d: mjx.Data, des: outputs.Desired, contact, tau_min, tau_max,

@@ -32,7 +32,7 @@ import numpy as np
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax.plants import Plant
 from hlip_jax.plants.base import StepCommand, StepResult, push_table
-from hlip_jax.plants.cassie import clfqp, control, model, outputs, realism, tick
+from hlip_jax.plants.cassie import clfqp, control, model, outputs, realism, terrain, tick
 
 cassie = tick.cassie
 #: ``fold_in`` index of the sensing noise's PRNG stream: far from the split indices (0, 1, 2)
@@ -97,6 +97,7 @@ class Params(NamedTuple):
     step_error: jax.Array    # half-width of the landing-target error [m]
     real: realism.Realism | None  # departures from the ideal plant (motors, sensing, model,
                                   # slope); None in a batch of ideal robots (not compiled)
+    terrain: terrain.Terrain | None = None  # the ground step; None in a batch on flat ground
 
 
 class State(NamedTuple):
@@ -131,21 +132,29 @@ def tick_budget(t_step: float) -> int:
     return int(10 * math.ceil(round(tick.LATE_SSP * t_step / (10 * control.CONTROL_DT), 6)))
 
 
-def make_params(cfg, n_push: int, t_step: float = 0.0, non_ideal: bool = False) -> Params:
+def make_params(cfg, n_push: int, t_step: float = 0.0, non_ideal: bool = False,
+                terrain_block: bool = False) -> Params:
     """Per-scenario plant data from a :class:`hlip_jax.config.ScenarioConfig`; pushes act on
     the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`).  The tick
     budget covers steps of ``max(t_step, step_span(cfg))`` (pass the sweep's longest span so
     that every chunk has one shape).  ``non_ideal``: the batch has a robot that departs from
     the ideal plant (``cfg.realism``), so every robot carries realism data; otherwise none
-    does, and a scenario that departs is an error."""
+    does, and a scenario that departs is an error.  ``terrain_block``: the batch has a step in
+    the ground (:mod:`terrain`), so every robot walks on the scene with the terrain block."""
     if not non_ideal and cfg.realism != type(cfg.realism)():
         raise ValueError(f"realism: scenario {cfg.name!r} departs from the ideal plant; build "
                          "it with non_ideal=True (rollout.shapes_of sets it for the batch)")
+    if not terrain_block and cfg.realism.step_height != 0.0:
+        raise ValueError(f"realism.step_height: scenario {cfg.name!r} has a step in the ground; "
+                         "build it with terrain_block=True (rollout.shapes_of sets it)")
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
     ticks = np.zeros(tick_budget(max(t_step, step_span(cfg))))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,
                   gait=make_gait(cfg.cassie), noise_v=np.float64(cfg.disturbance.noise_v),
-                  step_error=np.float64(cfg.disturbance.step_error), real=realism.make(cfg.realism) if non_ideal else None)
+                  step_error=np.float64(cfg.disturbance.step_error),
+                  real=realism.make(cfg.realism) if non_ideal else None,
+                  terrain=terrain.make(cfg.realism.step_height, cfg.realism.step_x)
+                  if terrain_block else None)
 
 
 def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
@@ -158,7 +167,8 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     (left foot 0.26 m left of the right one)."""
     del u0, stance0
     c = cassie()
-    m = c.mj_model
+    m, mx = ((c.mj_model, c.mjx_model) if params is None or params.terrain is None
+             else terrain.scene())
     dm = mujoco.MjData(m)
     mujoco.mj_resetDataKeyframe(m, dm, c.index.stand_key)
     mujoco.mj_forward(m, dm)
@@ -175,7 +185,7 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     hw, hz = jnp.cos(th / 2), jnp.sin(th / 2)
     root = jnp.stack([x0[0, 0] + ch * rx - sh * ry, x0[1, 0] + sh * rx + ch * ry, pz,
                       hw * w - hz * qz, hw * qx - hz * qy, hw * qy + hz * qx, hw * qz + hz * w])
-    d = control.canonical(c, d.replace(qpos=d.qpos.at[r0:r0 + 7].set(root)))
+    d = control.canonical(c, d.replace(qpos=d.qpos.at[r0:r0 + 7].set(root)), mx)
     terms = model.robot_terms(c, d)
     feet = outputs.foot_centres(terms)
     real = None if params is None or params.real is None else \
@@ -198,15 +208,20 @@ def _step_noise(params: Params, state: State, t_step, dt):
     return key, jnp.asarray(cassie().total_mass, dt) * dv / t_step, du
 
 
-def _physics_model(gait, real, physics: str):
+def _physics_model(gait, real, physics: str, ground=None):
     """(the controller's MJX-JAX model, the physics' model in MJX-JAX, the physics' model in
     the implementation ``physics`` steps it with): leaf-spring damping, then the realism
-    edits, applied alike to either implementation's base model."""
+    edits, applied alike to either implementation's base model; with a ``ground``
+    (:class:`terrain.Terrain`) the physics steps the scene with the terrain block (MJX-JAX
+    only: the sweep validator keeps steps off the Warp physics)."""
     def edited(base, damping, real):
         mx = tick.scenario_model(damping, base)
         return mx, (mx if real is None else realism.plant_model(cassie(), real, mx))
 
     mx, mx_plant = edited(None, gait.damping, real)
+    if ground is not None:
+        return mx, mx_plant, terrain.place(edited(terrain.scene()[1], gait.damping, real)[1],
+                                           ground)
     if physics == "jax":
         return mx, mx_plant, mx_plant
     from hlip_jax.plants.cassie import warp_physics
@@ -221,9 +236,11 @@ def _context(params: Params, state: State, cmd: StepCommand, f_noise, du_err,
     gait = jax.tree.map(lambda a: jnp.asarray(a, dt), params.gait)
     ctrl = cassie().ctrl_range
     real = _floats_as(params.real, dt)
-    mx, mx_plant, mx_physics = _physics_model(gait, real, physics)
+    ground = _floats_as(params.terrain, dt)
+    mx, mx_plant, mx_physics = _physics_model(gait, real, physics, ground)
     return tick.Context(
         cmd=cmd, gait=gait, mx=mx, mx_plant=mx_plant, mx_physics=mx_physics, real=real,
+        terrain=ground,
         new_st=1 - cmd.stance,
         sw=cmd.stance, yaw_from=state.yaw, dyaw=outputs.wrap(cmd.heading - state.yaw),
         land_xy=state.land_xy, f_noise=f_noise, du_err=du_err, t0=state.time,

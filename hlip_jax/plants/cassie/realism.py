@@ -50,7 +50,8 @@ of Agility Robotics' Cassie model as published in MuJoCo Menagerie.
 the nominal one): every link's mass and inertia × s_m, the pelvis COM shifted by (Δx, Δy) in the
 pelvis frame, the leaf-spring stiffness × s_k, the friction coefficient μ of the feet and the
 floor, and gravity tilted so the ground is a plane rising by α_x along world x and α_y along y
-(the controller does not know the slope: its frame stays the ground's).  The constraint
+(the controller does not know the slope: its frame stays the ground's).  A step in the ground
+(``step_height``, ``step_x``) is geometry, not a model edit: :mod:`terrain`.  The constraint
 solver's body weights are those of the nominal model.
 """
 
@@ -63,7 +64,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from hlip_jax.plants.cassie import dynamics, model
+from hlip_jax.plants.cassie import dynamics, model, terrain
 
 #: longest latency the per-scenario queue holds [ticks]; the config's range stops here
 MAX_LATENCY = 10
@@ -210,17 +211,19 @@ def estimate_velocity(real: Realism, rs: RealState, com_vel, dt_c: float) -> Rea
     return rs._replace(v_est=jnp.where(real.velocity_filter > 0, filtered, com_vel))
 
 
-def touching(c: model.Cassie, real: Realism, d_true, d_meas, site_pos, gap: float):
+def touching(c: model.Cassie, real: Realism, d_true, d_meas, site_pos, gap: float, ground=None):
     """(4,) bool per contact site (:data:`model.CONTACT_SITES`): the oracle (sphere within
-    ``gap`` [m] of the ground; ``site_pos`` where the measurement is exact, else the true
-    sites of ``d_true``'s last kinematics), the heel springs of ``d_meas`` (both sites of a
+    ``gap`` [m] of the ground — z = 0, or the step of ``ground``, a :class:`terrain.Terrain`;
+    ``site_pos`` where the measurement is exact, else the true sites of ``d_true``'s last
+    kinematics), the heel springs of ``d_meas`` (both sites of a
     foot whose spring deflects beyond the threshold), or the measured kinematics: both sites
     of a foot whose lower sphere is within ``gap`` of the lowest sphere in the measured
     ``site_pos`` (the stance foot stands for the ground, so the robot needs no ground height,
     and sensing errors and slopes move the detection; per foot, because a 3° pitch error
     already puts a flat foot's toe and heel 6 mm apart in the measurement)."""
     sites = jnp.where(real.noisy, d_true.site_xpos[np.asarray(c.index.contact_sites)], site_pos)
-    oracle = sites[:, 2] - model.FOOT_SPHERE_RADIUS < gap
+    floor = 0.0 if ground is None else terrain.height(ground, sites[:, :2])
+    oracle = sites[:, 2] - model.FOOT_SPHERE_RADIUS - floor < gap
     heel = -d_meas.qpos[layout(c).heel_qpos] > real.spring_threshold    # compressed by the load
     foot_low = jnp.min(site_pos[:, 2].reshape(2, 2), axis=1)                # (2,) per foot
     kinematic = jnp.repeat(foot_low - jnp.min(foot_low) < gap, 2)

@@ -83,6 +83,8 @@ class Context(NamedTuple):
                              # or its Warp twin: :mod:`warp_physics`)
     real: realism.Realism | None  # the scenario's departures from the ideal plant (None: an
                                   # ideal batch, nothing compiled)
+    terrain: object               # terrain.Terrain of the scenario's ground step (None: a batch
+                                  # on flat ground)
     new_st: jax.Array        # stance foot of the coming SSP (0 left, 1 right)
     sw: jax.Array            # foot that swings in the coming SSP
     yaw_from: jax.Array      # pelvis heading target at SSP⁻_k [rad]
@@ -242,7 +244,8 @@ def contacts(ctx: Context, s: TickState, dm: mjx.Data, terms) -> Contacts:
         touching = terms.site_pos[:, 2] - model.FOOT_SPHERE_RADIUS < CONTACT_GAP
         dsp_set = touching
     else:
-        touching = realism.touching(cassie(), ctx.real, s.d, dm, terms.site_pos, CONTACT_GAP)
+        touching = realism.touching(cassie(), ctx.real, s.d, dm, terms.site_pos, CONTACT_GAP,
+                                    ctx.terrain)
         dsp_set = touching | (ctx.real.touchdown == realism.TOUCHDOWN.index("spring"))
     in_dsp = s.phase == DSP
     stance_site = _SIDE_OF_SITE == ctx.new_st
