@@ -119,3 +119,19 @@ def test_a_step_makes_the_batch_carry_the_block_and_warp_is_refused():
     warp = C.ScenarioConfig(plant="cassie", realism=C.RealismConfig(step_height=0.03),
                             cassie=C.CassieConfig(physics="warp"))
     assert plants.check(warp).startswith("realism.step_height: 0.03 needs the MJX-JAX physics")
+
+
+@pytest.mark.parametrize("stance", [0, 1])
+def test_height_reference_is_the_stance_sole_when_asked(stance):
+    """``cassie.height_reference``: 0 from the ground (the default, exactly), the coming SSP's
+    stance foot's sole (toe/heel sphere bottoms' mean) when measured from the stance foot."""
+    import jax.numpy as jnp
+    from hlip_jax.plants.cassie import plant, tick
+    r = model.FOOT_SPHERE_RADIUS
+    z = np.array([-0.04, -0.05, 0.02, 0.03]) + r          # left toe, left heel, right toe, right heel
+    terms = types.SimpleNamespace(site_pos=jnp.asarray(np.c_[np.zeros((4, 2)), z]))
+    sole = [-0.045, 0.025][stance]
+    for ref, want in (("ground", 0.0), ("stance_foot", sole)):
+        g = plant.make_gait(C.CassieConfig(height_reference=ref))
+        ctx = types.SimpleNamespace(new_st=jnp.int32(stance), gait=g)
+        assert float(tick.height_reference(ctx, terms)) == pytest.approx(want, abs=1e-12)

@@ -54,6 +54,7 @@ class Gait(NamedTuple):
     damping: jax.Array         # (4,) simulated leaf-spring damping, left shin, left heel, right
                                # shin, right heel [N m s/rad]
     hold_unsolved: jax.Array   # 1.0: an unsolved CLF-QP keeps the previous torques, 0.0: last iterate
+    from_stance: jax.Array     # 1.0: heights measured from the stance foot's sole, 0.0: from z = 0
     gains: clfqp.Gains
 
 
@@ -82,7 +83,8 @@ def make_gait(cfg=None) -> Gait:
              step_length_max=f(cfg.step_length_max), step_width_min=f(cfg.step_width_min),
              step_width_max=f(cfg.step_width_max),
              damping=np.array([cfg.shin_damping, cfg.heel_damping] * 2, float),
-             hold_unsolved=f(cfg.qp_fallback == "hold"), gains=clfqp.make_gains(omega, weight=weight, w_chatter=cfg.w_chatter))
+             hold_unsolved=f(cfg.qp_fallback == "hold"),
+             from_stance=f(cfg.height_reference == "stance_foot"), gains=clfqp.make_gains(omega, weight=weight, w_chatter=cfg.w_chatter))
     _GAIT_CACHE[cfg] = g
     return g
 

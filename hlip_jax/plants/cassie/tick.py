@@ -283,9 +283,19 @@ def swing_duration(t_ssp, gait):
     return t_ssp / outputs.landing_fraction(gait.clearance, gait.strike)
 
 
+def height_reference(ctx: Context, terms) -> jax.Array:
+    """Height [m] the COM-height target and the swing profile are measured from: 0 (the flat
+    ground) or, with ``cassie.height_reference = "stance_foot"``, the sole of the coming SSP's
+    stance foot (the foot that has just landed, in DSP)."""
+    sole = outputs.foot_centres(terms)[:, 2]
+    st = jnp.where(ctx.new_st == 0, sole[0], sole[1])
+    return jnp.where(ctx.gait.from_stance > 0.5, st, jnp.zeros_like(st))
+
+
 def _foot_rows(ctx: Context, s: TickState, terms, u_des):
     """Desired (position (3,), velocity (3,), acceleration (3,), yaw, yaw rate) of the moving
-    foot: the swing foot in SSP, the landing foot in DSP (it reaches down until it touches)."""
+    foot: the swing foot in SSP, the landing foot in DSP (it reaches down until it touches);
+    heights above :func:`height_reference`."""
     g = ctx.gait
     t_ssp = swing_duration(ctx.cmd.t_ssp, g)            # the profile's own duration
     in_dsp = s.phase == DSP
@@ -294,7 +304,8 @@ def _foot_rows(ctx: Context, s: TickState, terms, u_des):
     st = jnp.where(ctx.new_st == 0, terms.ankle[0, :2], terms.ankle[1, :2])
     target = st + u_des + s.sw_offset + ctx.du_err
     start = s.sw_start[:2]
-    h = lambda t: outputs.swing_height(t, t_ssp, g.clearance, g.strike)
+    base = height_reference(ctx, terms)
+    h = lambda t: base + outputs.swing_height(t, t_ssp, g.clearance, g.strike)
     hz, hzd, hzdd = outputs.with_derivatives(h, ts)
     lz, lzd, lzdd = outputs.with_derivatives(h, LATE_SSP * t_ssp + s.t_phase)
     swing_p = jnp.concatenate([(1 - cb) * start + cb * target, hz[None]])
@@ -316,7 +327,7 @@ def desired_outputs(ctx: Context, s: TickState, terms, cts: Contacts, u_des) -> 
     dt = s.d.qpos.dtype
     pos, vel, acc, yaw, yaw_d, cb, cd = _foot_rows(ctx, s, terms, u_des)
     in_ssp = s.phase != DSP
-    z0 = jnp.clip(ctx.cmd.z0, *COM_HEIGHT)
+    z0 = jnp.clip(ctx.cmd.z0, *COM_HEIGHT) + height_reference(ctx, terms)
     y = jnp.zeros(outputs.N_OUT, dt).at[outputs.COM_Z].set(z0)
     yd = jnp.zeros(outputs.N_OUT, dt).at[2].set(jnp.where(in_ssp, cd * ctx.dyaw, 0.0))
     ydd = jnp.zeros(outputs.N_OUT, dt)
