@@ -84,7 +84,8 @@ def make_gait(cfg=None) -> Gait:
              step_width_max=f(cfg.step_width_max),
              damping=np.array([cfg.shin_damping, cfg.heel_damping] * 2, float),
              hold_unsolved=f(cfg.qp_fallback == "hold"),
-             from_stance=f(cfg.height_reference == "stance_foot"), gains=clfqp.make_gains(omega, weight=weight, w_chatter=cfg.w_chatter))
+             from_stance=f(cfg.height_reference == "stance_foot"),
+             gains=clfqp.make_gains(omega, weight=weight, w_chatter=cfg.w_chatter))
     _GAIT_CACHE[cfg] = g
     return g
 

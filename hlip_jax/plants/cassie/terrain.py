@@ -12,9 +12,11 @@ robot's bodies, joints, geoms or sites moves), ``2 HALF[0]`` long and ``2 HALF[1
 Only the box's and the floor's positions change between scenarios, so one compiled program
 serves every step height (MJX takes them as model arrays).  A batch without a stepped scenario
 has no block at all (its scene is the plain one, bit for bit); a batch with one gives every
-robot the block.  The controller is blind to the step: its model, its COM-height target and its
-swing profile keep the flat ground at z = 0; only the contact detection of an ideal robot (the
-distance of a foot sphere to the ground under it, :func:`height`) sees the terrain.
+robot the block.  The controller is blind to the step: its model keeps the flat ground, and its
+COM-height target and swing profile are measured from z = 0 (or, with
+``cassie.height_reference = "stance_foot"``, from the stance foot's sole, wherever it stands);
+only the contact detection of an ideal robot (the distance of a foot sphere to the ground
+under it, :func:`height`) sees the terrain.
 """
 
 from __future__ import annotations

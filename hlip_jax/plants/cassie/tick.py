@@ -292,10 +292,10 @@ def height_reference(ctx: Context, terms) -> jax.Array:
     return jnp.where(ctx.gait.from_stance > 0.5, st, jnp.zeros_like(st))
 
 
-def _foot_rows(ctx: Context, s: TickState, terms, u_des):
+def _foot_rows(ctx: Context, s: TickState, terms, u_des, base):
     """Desired (position (3,), velocity (3,), acceleration (3,), yaw, yaw rate) of the moving
     foot: the swing foot in SSP, the landing foot in DSP (it reaches down until it touches);
-    heights above :func:`height_reference`."""
+    heights above ``base`` [m] (:func:`height_reference`)."""
     g = ctx.gait
     t_ssp = swing_duration(ctx.cmd.t_ssp, g)            # the profile's own duration
     in_dsp = s.phase == DSP
@@ -304,7 +304,6 @@ def _foot_rows(ctx: Context, s: TickState, terms, u_des):
     st = jnp.where(ctx.new_st == 0, terms.ankle[0, :2], terms.ankle[1, :2])
     target = st + u_des + s.sw_offset + ctx.du_err
     start = s.sw_start[:2]
-    base = height_reference(ctx, terms)
     h = lambda t: base + outputs.swing_height(t, t_ssp, g.clearance, g.strike)
     hz, hzd, hzdd = outputs.with_derivatives(h, ts)
     lz, lzd, lzdd = outputs.with_derivatives(h, LATE_SSP * t_ssp + s.t_phase)
@@ -325,9 +324,10 @@ def desired_outputs(ctx: Context, s: TickState, terms, cts: Contacts, u_des) -> 
     """Pelvis level with its yaw blended to the heading, COM height z0, and the moving foot's
     position, sole slope 0 and yaw (its rows only while it is off the contact set)."""
     dt = s.d.qpos.dtype
-    pos, vel, acc, yaw, yaw_d, cb, cd = _foot_rows(ctx, s, terms, u_des)
+    base = height_reference(ctx, terms)
+    pos, vel, acc, yaw, yaw_d, cb, cd = _foot_rows(ctx, s, terms, u_des, base)
     in_ssp = s.phase != DSP
-    z0 = jnp.clip(ctx.cmd.z0, *COM_HEIGHT) + height_reference(ctx, terms)
+    z0 = jnp.clip(ctx.cmd.z0, *COM_HEIGHT) + base
     y = jnp.zeros(outputs.N_OUT, dt).at[outputs.COM_Z].set(z0)
     yd = jnp.zeros(outputs.N_OUT, dt).at[2].set(jnp.where(in_ssp, cd * ctx.dyaw, 0.0))
     ydd = jnp.zeros(outputs.N_OUT, dt)
