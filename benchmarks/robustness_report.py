@@ -4,7 +4,8 @@
     python benchmarks/robustness_report.py RESULTS_DIR [--figure FIG.png]
 
 One row per level of the sweep's one-factor grid (the ``realism.*`` fields that differ from
-the ideal plant name it): runs that walked the whole scenario, with the 95 % Clopper–Pearson
+the ideal plant name it, with any other swept field but the seed and the path after them):
+runs that walked the whole scenario, with the 95 % Clopper–Pearson
 interval; the median RMS COM-to-path distance of those runs; and the error-invariant set E of
 the level — W the box of the S2S residuals of half of the seeds (pushes excluded; both paths
 pooled: they share A, B and K), E = mRPI(A + BK, W), its half-extent on the global position c
@@ -37,10 +38,14 @@ IDEAL = RealismConfig()
 
 
 def level_label(cfg) -> str:
-    """The realism fields of a scenario that differ from the ideal plant, or "ideal"."""
+    """The realism fields of a scenario that differ from the ideal plant (or "ideal"), followed
+    by any other swept field but the seed and the path (paths are pooled): a second axis, e.g.
+    ``cassie.height_reference``."""
     diff = [f"{f.name}={getattr(cfg.realism, f.name)}" for f in dataclasses.fields(IDEAL)
             if getattr(cfg.realism, f.name) != getattr(IDEAL, f.name)]
-    return ", ".join(diff) if diff else "ideal"
+    other = [f"{k}={v}" for k, v in cfg.swept.items()
+             if k not in ("seed", "path") and not k.startswith("realism.")]
+    return ", ".join((diff or ["ideal"]) + other)
 
 
 def collect(out_dir):
@@ -131,7 +136,7 @@ def figure(levels, path) -> None:
             if plane in e and np.isfinite(e[plane][0]):
                 ax[1].plot(e[plane][0], yi + 0.12 * (p - 0.5), "os"[p], color=f"C{p + 1}",
                            label=plane if yi == y[0] else None)
-    short = [n if len(n) <= 36 else n.split(",")[0] + ", …" for n in names]
+    short = [n if len(n) <= 60 else n.split(",")[0] + ", …" for n in names]
     ax[0].set_yticks(y, short, fontsize=7)
     ax[0].set_xlabel("walked the scenario (95 % Clopper–Pearson)")
     ax[0].set_xlim(-0.02, 1.02)

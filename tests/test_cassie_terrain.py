@@ -123,8 +123,8 @@ def test_a_step_makes_the_batch_carry_the_block_and_warp_is_refused():
 
 @pytest.mark.parametrize("stance", [0, 1])
 def test_height_reference_is_the_stance_sole_when_asked(stance):
-    """``cassie.height_reference``: 0 from the ground (the default, exactly), the coming SSP's
-    stance foot's sole (toe/heel sphere bottoms' mean) when measured from the stance foot."""
+    """``cassie.height_reference``: the coming SSP's stance foot's sole (toe/heel sphere
+    bottoms' mean; the default), and exactly 0 when measured from the ground."""
     import jax.numpy as jnp
     from hlip_jax.plants.cassie import plant, tick
     r = model.FOOT_SPHERE_RADIUS
@@ -135,3 +135,4 @@ def test_height_reference_is_the_stance_sole_when_asked(stance):
         g = plant.make_gait(C.CassieConfig(height_reference=ref))
         ctx = types.SimpleNamespace(new_st=jnp.int32(stance), gait=g)
         assert float(tick.height_reference(ctx, terms)) == pytest.approx(want, abs=1e-12)
+    assert C.CassieConfig().height_reference == "stance_foot"

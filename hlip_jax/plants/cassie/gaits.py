@@ -37,6 +37,7 @@ PRESETS: dict[str, dict[str, object]] = {
         "cassie.omega_swing": 17.0053,
         "cassie.omega_yaw": 7.5996,
         "cassie.weight_pelvis": 6.3141,
+        "cassie.height_reference": "stance_foot",
     },
 }
 

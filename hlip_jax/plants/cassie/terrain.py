@@ -13,8 +13,8 @@ Only the box's and the floor's positions change between scenarios, so one compil
 serves every step height (MJX takes them as model arrays).  A batch without a stepped scenario
 has no block at all (its scene is the plain one, bit for bit); a batch with one gives every
 robot the block.  The controller is blind to the step: its model keeps the flat ground, and its
-COM-height target and swing profile are measured from z = 0 (or, with
-``cassie.height_reference = "stance_foot"``, from the stance foot's sole, wherever it stands);
+COM-height target and swing profile are measured from the stance foot's sole, wherever it
+stands (``cassie.height_reference = "stance_foot"``, the default; "ground" measures from z = 0);
 only the contact detection of an ideal robot (the distance of a foot sphere to the ground
 under it, :func:`height`) sees the terrain.
 """

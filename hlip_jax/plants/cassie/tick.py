@@ -284,9 +284,9 @@ def swing_duration(t_ssp, gait):
 
 
 def height_reference(ctx: Context, terms) -> jax.Array:
-    """Height [m] the COM-height target and the swing profile are measured from: 0 (the flat
-    ground) or, with ``cassie.height_reference = "stance_foot"``, the sole of the coming SSP's
-    stance foot (the foot that has just landed, in DSP)."""
+    """Height [m] the COM-height target and the swing profile are measured from: the sole of
+    the coming SSP's stance foot (the foot that has just landed, in DSP; ``cassie.
+    height_reference = "stance_foot"``, the default) or 0 (the flat ground, "ground")."""
     sole = outputs.foot_centres(terms)[:, 2]
     st = jnp.where(ctx.new_st == 0, sole[0], sole[1])
     return jnp.where(ctx.gait.from_stance > 0.5, st, jnp.zeros_like(st))
