@@ -229,7 +229,12 @@ class RealismConfig:
     slope_y: float = spec(0.0, -15.0, 15.0, "ground slope rising along world y", "deg")
     step_height: float = spec(0.0, -0.1, 0.1, "height of a step in the ground at world x = step_x "
                               "(+: up, -: down; the controller does not know it)", "m")
-    step_x: float = spec(2.0, 0.3, 100.0, "world x at which the ground steps", "m")
+    step_x: float = spec(2.0, 0.3, 100.0, "world x at which the ground steps, or the rough "
+                         "ground begins", "m")
+    rough_height: float = spec(0.0, 0.0, 0.1, "rough ground from world x = step_x on: height "
+                               "field nodes every 0.2 m at heights drawn uniformly from [0, "
+                               "rough_height] with the scenario's seed (the controller does not "
+                               "know them; not with step_height)", "m")
 
 
 @dataclass(frozen=True)

@@ -160,8 +160,10 @@ class Shapes(NamedTuple):
     t_step: float = 0.0      # longest step span [s] (Plant.step_span; the Cassie tick budget)
     non_ideal: bool = False  # a scenario departs from the ideal robot (``realism``): every
                              # robot of the batch carries the realism data (compiled in)
-    terrain: bool = False    # a scenario's ground has a step (``realism.step_height``): every
-                             # robot of the batch walks on the scene with the terrain block
+    terrain: str = "flat"    # the batch's ground: "rough" if a scenario has rough ground
+                             # (``realism.rough_height``), else "step" if one has a step
+                             # (``realism.step_height``), else "flat"; every robot of the batch
+                             # walks on that scene (:mod:`hlip_jax.plants.cassie.terrain`)
 
 
 def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
@@ -175,7 +177,14 @@ def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
         t_final=max((K + horizon + 2) * (c.hlip.t_ssp + c.hlip.t_dsp) for c in configs),
         t_step=max(_step_span(c) for c in configs),
         non_ideal=any(c.realism != RealismConfig() for c in configs),
-        terrain=any(c.realism.step_height != 0.0 for c in configs))
+        terrain=_ground_of(configs))
+
+
+def _ground_of(configs: Sequence[ScenarioConfig]) -> str:
+    """The batch's ground kind (:attr:`Shapes.terrain`)."""
+    if any(c.realism.rough_height != 0.0 for c in configs):
+        return "rough"
+    return "step" if any(c.realism.step_height != 0.0 for c in configs) else "flat"
 
 
 def _step_span(c: ScenarioConfig) -> float:

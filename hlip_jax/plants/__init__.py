@@ -26,8 +26,9 @@ class Plant(NamedTuple):
     name: the registry name (``plant = "..."`` in a sweep file).
     make_params: (cfg, n_push, t_step, non_ideal, terrain) -> per-scenario params pytree;
       ``t_step`` is the sweep's longest :attr:`step_span`, ``non_ideal`` whether any scenario
-      of the sweep departs from the ideal robot (``cfg.realism``) and ``terrain`` whether any
-      has a step in the ground, so that every chunk has one shape and one program.
+      of the sweep departs from the ideal robot (``cfg.realism``) and ``terrain`` the sweep's
+      ground ("flat", "step": a scenario has a step, "rough": one has rough ground), so that
+      every chunk has one shape and one program.
     init: (params, x0 (2, 3), u0 (2,), stance0, key, heading0) -> state.
     step: (params, state, cmd[, settings]) -> (state, StepResult).
     step_with_log: like ``step`` and also the per-tick log, or None (no ticks to log).
@@ -76,10 +77,14 @@ def check(cfg) -> Optional[str]:
                 return (f"disturbance.{f}: {_show(getattr(d, f))} acts on the H-LIP plant only; "
                         f"allowed with plant = 'cassie': {_show(getattr(d0, f))} (Cassie takes "
                         "disturbance.noise_v, disturbance.step_error and disturbance.pushes)")
-        if cfg.cassie.physics == "warp" and cfg.realism.step_height != 0.0:
-            return (f"realism.step_height: {cfg.realism.step_height:g} needs the MJX-JAX physics "
-                    "(the Warp physics has no terrain block); allowed with cassie.physics = "
-                    "'warp': 0")
+        for f in ("step_height", "rough_height"):
+            if cfg.cassie.physics == "warp" and getattr(cfg.realism, f) != 0.0:
+                return (f"realism.{f}: {getattr(cfg.realism, f):g} needs the MJX-JAX physics "
+                        "(the Warp physics has no terrain); allowed with cassie.physics = "
+                        "'warp': 0")
+        if cfg.realism.step_height != 0.0 and cfg.realism.rough_height != 0.0:
+            return ("realism.rough_height: a scenario has a step (realism.step_height) or rough "
+                    "ground, not both; allowed with step_height != 0: 0")
         if cfg.cassie.physics == "warp" and not warp_installed():
             return ("cassie.physics: 'warp' needs the warp-lang package (pip install "
                     "'hlip_jax[warp]'); allowed without it: 'jax'")

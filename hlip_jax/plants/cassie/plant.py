@@ -100,7 +100,7 @@ class Params(NamedTuple):
     step_error: jax.Array    # half-width of the landing-target error [m]
     real: realism.Realism | None  # departures from the ideal plant (motors, sensing, model,
                                   # slope); None in a batch of ideal robots (not compiled)
-    terrain: terrain.Terrain | None = None  # the ground step; None in a batch on flat ground
+    terrain: terrain.Terrain | None = None  # step or rough ground; None in a batch on flat ground
 
 
 class State(NamedTuple):
@@ -136,28 +136,31 @@ def tick_budget(t_step: float) -> int:
 
 
 def make_params(cfg, n_push: int, t_step: float = 0.0, non_ideal: bool = False,
-                terrain_block: bool = False) -> Params:
+                ground: str = "flat") -> Params:
     """Per-scenario plant data from a :class:`hlip_jax.config.ScenarioConfig`; pushes act on
     the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`).  The tick
     budget covers steps of ``max(t_step, step_span(cfg))`` (pass the sweep's longest span so
     that every chunk has one shape).  ``non_ideal``: the batch has a robot that departs from
     the ideal plant (``cfg.realism``), so every robot carries realism data; otherwise none
-    does, and a scenario that departs is an error.  ``terrain_block``: the batch has a step in
-    the ground (:mod:`terrain`), so every robot walks on the scene with the terrain block."""
+    does, and a scenario that departs is an error.  ``ground``: the batch's ground kind
+    (:data:`terrain.KINDS`; "step": every robot walks on the scene with the terrain block,
+    "rough": with the block and the height field)."""
     if not non_ideal and cfg.realism != type(cfg.realism)():
         raise ValueError(f"realism: scenario {cfg.name!r} departs from the ideal plant; build "
                          "it with non_ideal=True (rollout.shapes_of sets it for the batch)")
-    if not terrain_block and cfg.realism.step_height != 0.0:
-        raise ValueError(f"realism.step_height: scenario {cfg.name!r} has a step in the ground; "
-                         "build it with terrain_block=True (rollout.shapes_of sets it)")
+    for f, kinds in (("step_height", ("step", "rough")), ("rough_height", ("rough",))):
+        if ground not in kinds and getattr(cfg.realism, f) != 0.0:
+            raise ValueError(f"realism.{f}: scenario {cfg.name!r} has uneven ground; build it "
+                             f"with ground in {kinds} (rollout.shapes_of sets it)")
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
     ticks = np.zeros(tick_budget(max(t_step, step_span(cfg))))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,
                   gait=make_gait(cfg.cassie), noise_v=np.float64(cfg.disturbance.noise_v),
                   step_error=np.float64(cfg.disturbance.step_error),
                   real=realism.make(cfg.realism) if non_ideal else None,
-                  terrain=terrain.make(cfg.realism.step_height, cfg.realism.step_x)
-                  if terrain_block else None)
+                  terrain=terrain.make(cfg.realism.step_height, cfg.realism.step_x,
+                                       cfg.realism.rough_height, cfg.seed, ground == "rough")
+                  if ground != "flat" else None)
 
 
 def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
@@ -171,7 +174,7 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     del u0, stance0
     c = cassie()
     m, mx = ((c.mj_model, c.mjx_model) if params is None or params.terrain is None
-             else terrain.scene())
+             else terrain.scene_of(params.terrain))
     dm = mujoco.MjData(m)
     mujoco.mj_resetDataKeyframe(m, dm, c.index.stand_key)
     mujoco.mj_forward(m, dm)
@@ -223,8 +226,8 @@ def _physics_model(gait, real, physics: str, ground=None):
 
     mx, mx_plant = edited(None, gait.damping, real)
     if ground is not None:
-        return mx, mx_plant, terrain.place(edited(terrain.scene()[1], gait.damping, real)[1],
-                                           ground)
+        return mx, mx_plant, terrain.place(edited(terrain.scene_of(ground)[1], gait.damping,
+                                                  real)[1], ground)
     if physics == "jax":
         return mx, mx_plant, mx_plant
     from hlip_jax.plants.cassie import warp_physics

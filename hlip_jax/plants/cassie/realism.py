@@ -51,8 +51,8 @@ the nominal one): every link's mass and inertia × s_m, the pelvis COM shifted b
 pelvis frame, the leaf-spring stiffness × s_k, the friction coefficient μ of the feet and the
 floor, and gravity tilted so the ground is a plane rising by α_x along world x and α_y along y
 (the controller does not know the slope: its frame stays the ground's).  A step in the ground
-(``step_height``, ``step_x``) is geometry, not a model edit: :mod:`terrain`.  The constraint
-solver's body weights are those of the nominal model.
+or rough ground (``step_height``, ``step_x``, ``rough_height``) is geometry, not a model edit:
+:mod:`terrain`.  The constraint solver's body weights are those of the nominal model.
 """
 
 from __future__ import annotations
