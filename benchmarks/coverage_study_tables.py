@@ -64,7 +64,8 @@ def coverage_table(path: pathlib.Path) -> list[str]:
             out.append(
                 f"| {r['group']} | {r['plane']} | {w} | {r['train_runs']} ({r['train_fell']}) / "
                 f"{r['test_runs']} ({r['test_fell']}) | {r['test_samples']} | "
-                f"{float(r['coverage']):.3f} | [{float(r['ci_low']):.3f}, {float(r['ci_high']):.3f}] | "
+                f"{float(r['coverage']):.3f} | "
+                f"[{float(r['ci_low']):.3f}, {float(r['ci_high']):.3f}] | "
                 f"{float(r['e_c_max']):.2f} | {float(r['err_c_max']):.2f} |")
     return out
 

@@ -33,7 +33,8 @@ def test_scene_appends_the_block_after_the_robot():
     step = terrain.scene()[0]
     assert (step.nbody, step.ngeom, step.nhfield) == (flat.nbody + 1, flat.ngeom + 1, 0)
     m, _ = terrain.scene(field=True)
-    assert (m.nbody, m.ngeom, m.nsite, m.nq) == (flat.nbody + 2, flat.ngeom + 2, flat.nsite, flat.nq)
+    assert (m.nbody, m.ngeom, m.nsite, m.nq) == (flat.nbody + 2, flat.ngeom + 2, flat.nsite,
+                                                 flat.nq)
     for name in ("geom_bodyid", "geom_type", "geom_size", "geom_contype", "geom_conaffinity",
                  "site_bodyid", "body_parentid"):
         a, b = getattr(m, name), getattr(flat, name)

@@ -153,7 +153,8 @@ def step_span(cfg: ScenarioConfig) -> float:
     return cfg.hlip.t_ssp + cfg.hlip.t_dsp
 
 
-PLANT = Plant(name="hlip", make_params=lambda cfg, n_push, t_step=0.0, non_ideal=False, terrain="flat":
+PLANT = Plant(name="hlip",
+              make_params=lambda cfg, n_push, t_step=0.0, non_ideal=False, terrain="flat":
               make_params(cfg, n_push),
               init=init, step=step, step_with_log=None, step_span=step_span,
               settings=lambda cfg, robots=1: None)

@@ -22,14 +22,16 @@ off the patch the ground ends.  Without rough ground the field lies buried at z 
 Both bodies, ``terrain`` (the box) and ``rough`` (the field), are appended after the robot, so
 no index of the robot's bodies, joints, geoms or sites moves.  Only their positions and the
 field's heights change between scenarios, so one compiled program serves every step height and
-every rough draw (MJX takes them as model arrays).  A batch's ground is one of
-:data:`KINDS` (``rollout.Shapes.terrain``): "flat", no terrain at all (the plain scene, bit for
-bit); "step", the block alone (a batch with steps walks the same scene whether or not the
-field exists); "rough", the block and the field, the unused one buried.  The controller is blind to the terrain: its model keeps the flat ground,
-and its COM-height target and swing profile are measured from the stance foot's sole, wherever
-it stands (``cassie.height_reference = "stance_foot"``, the default; "ground" measures from
-z = 0); only the contact detection of an ideal robot (the distance of a foot sphere to the
-ground under it, :func:`height`) sees the terrain.
+every rough draw (MJX takes them as model arrays).  A batch's ground is one of :data:`KINDS`
+(``rollout.Shapes.terrain``): "flat", no terrain at all (the plain scene, bit for bit); "step",
+the block alone (a batch with steps walks the same scene whether or not the field exists);
+"rough", the block and the field, the unused one buried.
+
+The controller is blind to the terrain: its model keeps the flat ground, and its COM-height
+target and swing profile are measured from the stance foot's sole, wherever it stands
+(``cassie.height_reference = "stance_foot"``, the default; "ground" measures from z = 0); only
+the contact detection of an ideal robot (the distance of a foot sphere to the ground under it,
+:func:`height`) sees the terrain.
 """
 
 from __future__ import annotations
@@ -114,8 +116,9 @@ def node_x() -> np.ndarray:
 
 def hfield_height(t: Terrain, xy) -> jax.Array:
     """Height [m] of the height field's surface under the points ``xy`` (..., 2); −inf off the
-    patch or without a field.  In a cell with corner heights h00 (node i, j), h10 (i + 1, j), h01 (i, j + 1) and
-    h11, at fractions (u, v) ∈ [0, 1]² along x and y, MuJoCo's two triangles give
+    patch or without a field.  In a cell with corner heights h00 (node i, j), h10 (i + 1, j),
+    h01 (i, j + 1) and h11, at fractions (u, v) ∈ [0, 1]² along x and y, MuJoCo's two
+    triangles give
 
         u ≥ v:  h00 + u (h10 − h00) + v (h11 − h10)
         u < v:  h00 + v (h01 − h00) + u (h11 − h01)."""
@@ -171,7 +174,8 @@ def geoms() -> tuple[int, int, int]:
     """(floor, block, height-field) geom ids in :func:`scene` (the field's id in the scene
     with it; the floor's and the block's are the same in both)."""
     m = scene(field=True)[0]
-    return tuple(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in ("floor", NAME, HF_NAME))
+    return tuple(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)
+                 for n in ("floor", NAME, HF_NAME))
 
 
 def scene_of(t: Terrain) -> tuple[mujoco.MjModel, mjx.Model]:
