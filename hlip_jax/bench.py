@@ -163,6 +163,8 @@ def _device_runs(batch, static, B: int, steps: int, devices, emit) -> list[tuple
 
 def _loop(static) -> str:
     """The CLF-QP loop (``CassieConfig.qp_loop``) of a build's static settings."""
+    if static.plant_settings.qp_compact:
+        return "compact"
     return "while" if static.plant_settings.qp.early_exit else "fixed"
 
 

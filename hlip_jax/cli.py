@@ -249,9 +249,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--admm", action="store_true",
                    help="also time each batch with the CLF-QP's ADMM budget cut to one "
                    "convergence check and report the ADMM iterations' share of the tick")
-    b.add_argument("--qp-loop", nargs="+", default=["while"], choices=("while", "fixed"),
+    b.add_argument("--qp-loop", nargs="+", default=["while"], choices=("while", "fixed", "compact"),
                    metavar="LOOP", help="CLF-QP block loops to time, each on the same batch in this "
-                   "process (cassie.qp_loop: while, fixed)")
+                   "process (cassie.qp_loop: while, fixed, compact)")
     b.add_argument("--qp-linsys", nargs="+", default=["cholesky"], choices=("cholesky", "inverse"),
                    metavar="SOLVE", help="CLF-QP linear solves to time, each on the same batch in this "
                    "process (cassie.qp_linsys: cholesky, inverse)")

@@ -174,7 +174,10 @@ class CassieConfig:
     qp_loop: str = spec("while", doc="the CLF-QP's ADMM block loop (static): 'while' stops when every "
                         "robot's QP of the batch has converged; 'fixed' always runs the whole budget in a "
                         "loop of static trip count (the same torques; on an H100 2.2x slower at batch 32, "
-                        "BENCHMARKS.md)", choices=("while", "fixed"))
+                        "BENCHMARKS.md); 'compact' is the while loop with straggler compaction: the "
+                        "robots whose QPs are still unsolved continue in a smaller batch (the same "
+                        "torques up to rounding; for large batches on a GPU, BENCHMARKS.md)",
+                        choices=("while", "fixed", "compact"))
     qp_linsys: str = spec("cholesky", doc="how the CLF-QP's ADMM solves its linear system each iteration "
                           "(static): 'cholesky' (two triangular solves with the factor) or 'inverse' "
                           "(the inverse formed once per factorisation, then a matrix-vector product; "

@@ -33,12 +33,16 @@ as every problem is done; without it they run in a loop of static trip count
 ⌈max_iter / check_interval⌉ (no data-dependent exit).  A problem's iterates are the same either
 way: the extra blocks only touch problems that are already frozen.  In the Cassie tick on an H100
 the while loop is the faster one (the blocks it saves cost more than its predicate's trips to the
-host; BENCHMARKS.md).  Status codes are
+host; BENCHMARKS.md).  A batch solved in one piece on an accelerator runs with *straggler
+compaction* (:func:`_compacted`): the problems still unfinished when an eighth of the batch
+is left continue in a batch of that size, so the work follows the distribution of iteration
+counts instead of the slowest problem.  Status codes are
 OSQP 1.x's.  dtype follows the inputs (float32 or float64); products run at highest precision.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple, Optional, Tuple
 
@@ -437,11 +441,11 @@ def _block_status(d: "_Scaled", s: Settings, x, z, y, dx, dy, it):
     return jnp.where(finite, status, UNSOLVED).astype(jnp.int32), prim, dual, prods
 
 
-def _adapt_rho(d: "_Scaled", s: Settings, st: "_State", z, prods, it, done):
-    """OSQP's adaptive ρ on the scaled residual ratios, on the fixed interval; refactorises
-    only when ρ changes.  Returns (ρ, factorisation)."""
+def _new_rho(d: "_Scaled", s: Settings, st: "_State", z, prods, it, done):
+    """OSQP's adaptive ρ on the scaled residual ratios, on the fixed interval.
+    Returns (ρ, whether it changed: the factorisation is then out of date)."""
     if not s.adaptive_rho:
-        return st.rho, st.F
+        return st.rho, jnp.zeros((), bool)
     Ax, Px, Aty = prods
     pr = _ninf(Ax - z) / (jnp.maximum(_ninf(Ax), _ninf(z)) + _DIV_TOL)
     du = _ninf(Px + d.q + Aty) / (
@@ -450,20 +454,41 @@ def _adapt_rho(d: "_Scaled", s: Settings, st: "_State", z, prods, it, done):
     change = ((rho_new > st.rho * s.adaptive_rho_tolerance)
               | (rho_new < st.rho / s.adaptive_rho_tolerance))
     change = change & (it % s.adaptive_rho_interval == 0) & ~done & jnp.isfinite(rho_new)
-    rho = jnp.where(change, rho_new, st.rho)
-    F = lax.cond(change, lambda: _factor(d, s.sigma, _rho_vec(rho, d), s.linsys), lambda: st.F)
-    return rho, F
+    return jnp.where(change, rho_new, st.rho), change
 
 
-def _block(d: "_Scaled", s: Settings, st: "_State") -> "_State":
-    """One block of the outer loop: iterate, check, adapt ρ.  A finished problem is frozen
-    (matters under vmap, where the loop runs for the batch)."""
+def _block_core(d: "_Scaled", s: Settings, st: "_State"):
+    """One block of the outer loop before refactorisation: iterate, check, adapt ρ.
+    Returns (new state with the old factorisation, whether ρ changed)."""
     x, z, y, dx, dy, it = _iterate(d, s, st, _rho_vec(st.rho, d))
     status, prim, dual, prods = _block_status(d, s, x, z, y, dx, dy, it)
     done = status != 0
-    rho, F = _adapt_rho(d, s, st, z, prods, it, done)
-    new = _State(x, z, y, dx, dy, rho, F, it, status, done, prim, dual)
-    return jax.tree.map(lambda a, b: jnp.where(st.done, a, b), st, new)
+    rho, change = _new_rho(d, s, st, z, prods, it, done)
+    return _State(x, z, y, dx, dy, rho, st.F, it, status, done, prim, dual), change
+
+
+def _freeze(old: "_State", new: "_State") -> "_State":
+    """A problem finished before the block keeps its state (matters under vmap, where the
+    loop runs for the batch)."""
+    return jax.tree.map(lambda a, b: jnp.where(old.done, a, b), old, new)
+
+
+def _block(d: "_Scaled", s: Settings, st: "_State") -> "_State":
+    """One block for one problem: :func:`_block_core`, refactorising only when ρ changed."""
+    new, change = _block_core(d, s, st)
+    F = lax.cond(change, lambda: _factor(d, s.sigma, _rho_vec(new.rho, d), s.linsys), lambda: st.F)
+    return _freeze(st, new._replace(F=F))
+
+
+def _block_batch(d: "_Scaled", s: Settings, st: "_State") -> "_State":
+    """One block for a batch (leading axis): :func:`_block_core` per problem, and the
+    factorisations of the problems whose ρ changed, computed only in blocks where some did
+    (under vmap :func:`_block`'s condition would become a select that always factors)."""
+    new, change = jax.vmap(lambda d, st: _block_core(d, s, st))(d, st)
+    refactor = jax.vmap(lambda d, rho: _factor(d, s.sigma, _rho_vec(rho, d), s.linsys))
+    fresh = lambda: jnp.where(change[:, None, None], refactor(d, new.rho), st.F)
+    F = lax.cond(jnp.any(change), fresh, lambda: st.F)
+    return jax.vmap(_freeze)(st, new._replace(F=F))
 
 
 def n_blocks(s: Settings) -> int:
@@ -480,28 +505,82 @@ def _blocks(d: "_Scaled", s: Settings, st: "_State") -> "_State":
     return lax.fori_loop(0, n_blocks(s), lambda _, st: _block(d, s, st), st)
 
 
-def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
-    """Solve one problem (no batch axes); traced under jit / vmap: sanitise, scale (Ruiz
-    equilibration and cost scaling), blocks of ADMM steps until every status is final,
-    unscale (x = D x̄, y = E ȳ / c, z = E⁻¹ z̄)."""
+def _setup_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
+    """One problem (no batch axes) up to its first iterate: sanitise, scale (Ruiz equilibration
+    and cost scaling), factor.  Returns (scaled data, state, valid)."""
     P, q, A, l, u, x0, y0, valid, l_inf, u_inf = _sanitise(P, q, A, l, u, x0, y0, warm)
     Ps, qs, As, D, E, c = _ruiz(P, q, A, s.scaling)
     d = _Scaled(Ps, qs, As, E * l, E * u, l_inf, u_inf, D, E, c)
-    st = _initial_state(d, s, x0, y0, valid, warm)
-    st = _blocks(d, s, st)
-    nan = jnp.asarray(jnp.nan, q.dtype)
+    return d, _initial_state(d, s, x0, y0, valid, warm), valid
+
+
+def _finish_one(d: _Scaled, st: _State, valid) -> Solution:
+    """Unscale the last iterate: x = D x̄, y = E ȳ / c, z = E⁻¹ z̄ (NaN for invalid data)."""
+    nan = jnp.asarray(jnp.nan, d.q.dtype)
     x = jnp.where(valid, d.D * st.x, nan)
     y = jnp.where(valid, d.E * st.y / d.c, nan)
     z = jnp.where(valid, st.z / d.E, nan)
     return Solution(x, y, z, st.status, st.it, st.prim_res, st.dual_res)
 
 
-def _solve_flat(P, q, A, l, u, x0, y0, settings: Settings, warm: bool, batched: bool, chunk: int):
+def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
+    """Solve one problem (no batch axes); traced under jit / vmap: set up, blocks of ADMM steps
+    until every status is final, unscale."""
+    d, st, valid = _setup_one(P, q, A, l, u, x0, y0, s, warm)
+    return _finish_one(d, _blocks(d, s, st), valid)
+
+
+def compaction_tiers(batch: int, shrink: int = 8, smallest: int = 256) -> Tuple[int, ...]:
+    """Batch sizes of the compacted loop: ``batch``, then ÷ ``shrink`` while at least
+    ``smallest`` (a tier smaller than that costs about as much per block as the one above)."""
+    tiers = [batch]
+    while tiers[-1] // shrink >= smallest:
+        tiers.append(tiers[-1] // shrink)
+    return tuple(tiers)
+
+
+def _blocks_until(d: _Scaled, s: Settings, st: _State, unfinished: int) -> _State:
+    """Blocks over the whole (batched) state until at most ``unfinished`` problems are left."""
+    return lax.while_loop(lambda st: jnp.sum(~st.done) > unfinished,
+                          lambda st: _block_batch(d, s, st), st)
+
+
+def _compacted(d: _Scaled, s: Settings, st: _State, tiers: Tuple[int, ...]) -> _State:
+    """Straggler compaction.  The batch runs blocks until only ``tiers[1]`` problems are
+    unfinished; those are gathered into a batch of that size (slots beyond the unfinished
+    ones are marked done and dropped again), which continues the same way down the tiers; the
+    last tier runs until every problem is done.  A problem's iterates do not depend on the
+    batch it runs in, so the results are those of the plain loop; the work follows the
+    distribution of iteration counts instead of the batch's slowest problem."""
+    if len(tiers) == 1:
+        return _blocks_until(d, s, st, 0)
+    size, cap = tiers[0], tiers[1]
+    st = _blocks_until(d, s, st, cap)
+    idx = jnp.nonzero(~st.done, size=cap, fill_value=size)[0]
+    take = jnp.minimum(idx, size - 1)
+    sub_d = jax.tree.map(lambda a: a[take], d)
+    sub = jax.tree.map(lambda a: a[take], st)
+    sub = _compacted(sub_d, s, sub._replace(done=sub.done | (idx == size)), tiers[1:])
+    return jax.tree.map(lambda a, b: a.at[idx].set(b, mode="drop"), st, sub)
+
+
+def _solve_compacted(args, s: Settings, warm: bool):
+    """A batch on an accelerator: per-problem setup and unscaling vmapped, the ADMM blocks in
+    the tiers of :func:`_compacted`."""
+    d, st, valid = jax.vmap(lambda *a: _setup_one(*a, s, warm))(*args)
+    st = _compacted(d, s, st, compaction_tiers(args[1].shape[0]))
+    return jax.vmap(_finish_one)(d, st, valid)
+
+
+def _solve_flat(P, q, A, l, u, x0, y0, settings: Settings, warm: bool, batched: bool, chunk: int,
+                compact: bool):
     with jax.default_matmul_precision("highest"):
         f = lambda *a: _solve_one(*a, settings, warm)
         if not batched:
             return f(P, q, A, l, u, x0, y0)
         B = q.shape[0]
+        if compact and settings.early_exit and chunk >= B:
+            return _solve_compacted((P, q, A, l, u, x0, y0), settings, warm)
         if chunk >= B:
             return jax.vmap(f)(P, q, A, l, u, x0, y0)
         # Chunks of the batch run one after another (lax.map), each as a vmapped while loop that
@@ -515,7 +594,7 @@ def _solve_flat(P, q, A, l, u, x0, y0, settings: Settings, warm: bool, batched: 
         return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:])[:B], out)
 
 
-_solve_jit = jax.jit(_solve_flat, static_argnames=("settings", "warm", "batched", "chunk"))
+_solve_jit = jax.jit(_solve_flat, static_argnames=("settings", "warm", "batched", "chunk", "compact"))
 
 
 def default_chunk() -> int:
@@ -523,9 +602,39 @@ def default_chunk() -> int:
     return 32 if jax.default_backend() == "cpu" else 1 << 62
 
 
+@functools.lru_cache(maxsize=None)
+def _compacted_under_vmap(settings: Settings, warm: bool):
+    """One problem's solve whose batching rule solves a vmapped batch in one piece with
+    straggler compaction (``jax.custom_batching.custom_vmap``): a caller that vmaps a
+    per-problem function around :func:`solve` (the Cassie tick over its robots) gets the
+    batch's tiers instead of a loop that runs until its slowest problem is done."""
+
+    @jax.custom_batching.custom_vmap
+    def one(*args):
+        return _solve_jit(*args, settings=settings, warm=warm, batched=False, chunk=1,
+                          compact=False)
+
+    @one.def_vmap
+    def batched(axis_size, in_batched, *args):
+        args = [a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
+                for a, b in zip(args, in_batched)]
+        sol = _solve_jit(*args, settings=settings, warm=warm, batched=True, chunk=axis_size,
+                         compact=True)
+        return sol, jax.tree.map(lambda _: True, sol)
+
+    return one
+
+
+def default_compact() -> bool:
+    """Straggler compaction (:func:`_compacted`) for a batch solved in one piece: on
+    accelerators (a while loop's trips cost little next to a block over the whole batch);
+    not on the CPU, where the batch runs in chunks."""
+    return jax.default_backend() != "cpu"
+
+
 def solve(P, q, A, l, u, *, settings: Settings = Settings(),
           warm_start: Optional[Tuple[jax.Array, jax.Array]] = None,
-          batch_chunk: Optional[int] = None) -> Solution:
+          batch_chunk: Optional[int] = None, compact: Optional[bool] = None) -> Solution:
     """Solve ``min ½xᵀPx + qᵀx  s.t.  l ≤ Ax ≤ u`` for one problem or a batch.
 
     Args:
@@ -538,6 +647,11 @@ def solve(P, q, A, l, u, *, settings: Settings = Settings(),
         receding-horizon problem); z starts at A x.
       batch_chunk: problems per vmapped chunk (chunks run sequentially, each until its own
         problems are done); default ``default_chunk()``.  Results do not depend on it.
+      compact: run a batch solved in one piece with straggler compaction (:func:`_compacted`;
+        with ``Settings.early_exit`` only); default ``default_compact()``.  For a single
+        problem, ``True`` compacts the batch of an external vmap around this call
+        (:func:`_compacted_under_vmap`); the default leaves it a plain vmapped loop.  Results
+        do not depend on it beyond the rounding of differently compiled programs.
     Leading batch axes of all arguments broadcast against each other; the batch is vmapped
     internally.  dtype is the inputs' common float type.  Works under ``jit`` and ``vmap``.
 
@@ -548,6 +662,8 @@ def solve(P, q, A, l, u, *, settings: Settings = Settings(),
     chunk = default_chunk() if batch_chunk is None else batch_chunk
     if not (isinstance(chunk, int) and chunk >= 1):
         raise ValueError(f"batch_chunk = {batch_chunk!r} is outside the allowed range: integers >= 1")
+    if not (compact is None or isinstance(compact, bool)):
+        raise ValueError(f"compact = {compact!r} is outside the allowed range: True or False")
     P, q, A, l, u = (jnp.asarray(a) for a in (P, q, A, l, u))
     dtype = jnp.result_type(P, q, A, l, u, float)
     if warm_start is not None:
@@ -586,8 +702,12 @@ def solve(P, q, A, l, u, *, settings: Settings = Settings(),
     shapes = ((n, n), (n,), (m_eff, n), (m_eff,), (m_eff,), (n,), (m_eff,))
     args = [jnp.broadcast_to(a.astype(dtype), batch + sh).reshape((-1,) + sh) if batch else
             a.astype(dtype) for a, sh in zip((P, q, A, l, u, x0, y0), shapes)]
-    sol = _solve_jit(*args, settings=settings, warm=warm_start is not None,
-                     batched=bool(batch), chunk=chunk)
+    warm = warm_start is not None
+    if not batch and compact:
+        sol = _compacted_under_vmap(settings, warm)(*args)
+    else:
+        sol = _solve_jit(*args, settings=settings, warm=warm, batched=bool(batch), chunk=chunk,
+                         compact=default_compact() if compact is None else compact)
     if batch:
         sol = jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), sol)
     if m == 0:

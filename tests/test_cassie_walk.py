@@ -212,6 +212,10 @@ def test_make_params_pushes_and_validation():
     assert rollout.build([cfg4])[1].plant_settings.qp.early_exit is False
     with pytest.raises(ValueError, match="cassie.qp_loop"):
         rollout.build([cfg3, cfg4])
+    cfg6 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_loop="compact", qp_max_iter=50))
+    compact = rollout.build([cfg6])[1].plant_settings
+    assert compact.qp.early_exit is True and compact.qp_compact is True
+    assert rollout.build([cfg3])[1].plant_settings.qp_compact is False
     # and so is its linear solve
     cfg5 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_linsys="inverse", qp_max_iter=50))
     assert rollout.build([cfg5])[1].plant_settings.qp.linsys == "inverse"

@@ -313,3 +313,69 @@ def test_fixed_trip_count_loop_gives_the_same_solutions(max_iter, check):
     if max_iter < 100:
         assert np.any(np.isin(np.asarray(a.status), [qp.MAX_ITER, qp.SOLVED_INACCURATE,
                                                      qp.PRIMAL_INFEASIBLE_INACCURATE]))
+
+
+def test_compaction_tiers():
+    # each tier an eighth of the one above, none below 256 problems
+    assert qp.compaction_tiers(65536) == (65536, 8192, 1024)
+    assert qp.compaction_tiers(2048) == (2048, 256)
+    assert qp.compaction_tiers(2047) == (2047,)
+    assert qp.compaction_tiers(1) == (1,)
+
+
+@pytest.mark.parametrize("warm", [False, True])
+def test_straggler_compaction_gives_the_same_solutions(warm):
+    # 2048 problems of every kind (well and badly conditioned, LP, PSD, both infeasibilities,
+    # invalid data) solved as one batch: plain vmapped loop vs compacted tiers (2048 → 256).
+    # Each problem runs the same iterations in whichever tier it finishes, so iterations and
+    # statuses agree exactly and x, y to 1e-12 (float64; the tiers are differently compiled
+    # programs whose fusions may round differently).
+    rng = np.random.default_rng(2048)
+    makers = [lambda: random_qp(rng, 6, 14), lambda: random_qp(rng, 6, 14, "ill"),
+              lambda: random_qp(rng, 6, 14, "lp"), lambda: random_qp(rng, 6, 14, "psd"),
+              lambda: primal_infeasible_qp(rng, 6, 14), lambda: dual_infeasible_qp(rng, 6, 14)]
+    probs = [makers[k % len(makers)]() for k in range(2047)]
+    nan = [a.copy() for a in probs[0]]
+    nan[2][0, 0] = np.nan
+    args = stack(probs + [nan])
+    ws = None
+    if warm:  # a warm start from a coarse solve: the iteration counts spread differently
+        coarse = qp.solve(*args, settings=qp.Settings(eps_abs=1e-2, eps_rel=1e-2))
+        ws = (np.nan_to_num(np.asarray(coarse.x)), np.nan_to_num(np.asarray(coarse.y)))
+    s = qp.Settings(eps_abs=1e-6, eps_rel=1e-6, max_iter=4000)
+    a = qp.solve(*args, settings=s, warm_start=ws, batch_chunk=1 << 20, compact=False)
+    b = qp.solve(*args, settings=s, warm_start=ws, batch_chunk=1 << 20, compact=True)
+    its = np.asarray(a.iterations)
+    assert its.max() > 4 * np.median(its)  # a tail for the compaction to cut off
+    np.testing.assert_array_equal(a.status, b.status)
+    np.testing.assert_array_equal(a.iterations, b.iterations)
+    for u, v in ((a.x, b.x), (a.y, b.y)):
+        np.testing.assert_allclose(u, v, atol=1e-12, rtol=0)
+    assert set(np.unique(np.asarray(a.status))) >= {qp.SOLVED, qp.PRIMAL_INFEASIBLE,
+                                                    qp.DUAL_INFEASIBLE, qp.UNSOLVED}
+
+
+def test_bad_compact_names_the_argument():
+    with pytest.raises(ValueError, match="compact"):
+        qp.solve(np.eye(2), np.zeros(2), np.eye(2), -np.ones(2), np.ones(2), compact=1)
+
+
+def test_compaction_under_an_external_vmap():
+    # A per-problem function vmapped by its caller (as the Cassie tick is over its robots):
+    # with compact=True the batch of the vmap is solved in compacted tiers (2048 → 256) through
+    # the custom batching rule; the results are the plain vmapped loop's (float64, 1e-12).
+    rng = np.random.default_rng(4096)
+    probs = [random_qp(rng, 6, 14, ("pd", "ill", "lp")[k % 3]) for k in range(2048)]
+    args = [jnp.asarray(a) for a in stack(probs)]
+    s = qp.Settings(eps_abs=1e-6, eps_rel=1e-6, max_iter=4000)
+    one = lambda compact: jax.jit(jax.vmap(
+        lambda P, q, A, l, u: qp.solve(P, q, A, l, u, settings=s, compact=compact)))
+    a, b = one(False)(*args), one(True)(*args)
+    its = np.asarray(a.iterations)
+    assert its.max() > 4 * np.median(its)
+    np.testing.assert_array_equal(a.iterations, b.iterations)
+    np.testing.assert_array_equal(a.status, b.status)
+    np.testing.assert_allclose(a.x, b.x, atol=1e-12, rtol=0)
+    # unbatched, the same call is the plain solve
+    c = qp.solve(*(x[0] for x in args), settings=s, compact=True)
+    np.testing.assert_allclose(c.x, a.x[0], atol=1e-12, rtol=0)

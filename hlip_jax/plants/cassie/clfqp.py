@@ -210,18 +210,21 @@ def idle(prob: Problem, warm, active):
 
 
 def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
-          settings: qp.Settings = DEFAULT_SETTINGS, fallback=False, active=True) -> Result:
+          settings: qp.Settings = DEFAULT_SETTINGS, fallback=False, active=True,
+          compact: bool = False) -> Result:
     """Build and solve the CLF-QP; ``warm`` = (x, y) from the previous tick (zeros at start).
 
     ``fallback`` (bool or traced boolean scalar): when the QP is not solved, return the previous
     tick's solution instead of the clipped last iterate (per scenario while walking:
     ``CassieConfig.qp_fallback``; standing push recovery does better with the iterate).
     ``active`` false (traced boolean): the tick's torques are not used; a trivial QP is solved
-    instead (:func:`idle`) and the result carries ``warm`` unchanged."""
+    instead (:func:`idle`) and the result carries ``warm`` unchanged.  ``compact`` (static):
+    a batch vmapped around this call is solved with straggler compaction
+    (:func:`hlip_jax.qp.solve`)."""
     nu = jnp.shape(tau_min)[0]
     prob = build(meas, des, cond, contact, tau_min, tau_max, gains, tau_prev=warm[0][:nu])
     P, q, l, u, w = idle(prob, warm, active)
-    sol = qp.solve(P, q, prob.A, l, u, settings=settings, warm_start=w)
+    sol = qp.solve(P, q, prob.A, l, u, settings=settings, warm_start=w, compact=compact)
     # with ``fallback`` a problem the ADMM budget did not solve (typically infeasible contact
     # rows at an impact) keeps the previous tick's torques instead of an unconverged iterate;
     # without it only a non-finite iterate falls back

@@ -351,8 +351,9 @@ def settings(cfg, robots: int = 1) -> tick.Settings:
         warp_physics.require()
     qp_settings = clfqp.DEFAULT_SETTINGS._replace(
         max_iter=cfg.cassie.qp_max_iter, eps_abs=cfg.cassie.qp_eps, eps_rel=cfg.cassie.qp_eps,
-        early_exit=cfg.cassie.qp_loop == "while", linsys=cfg.cassie.qp_linsys)
-    return tick.Settings(qp=qp_settings, physics=cfg.cassie.physics, robots=int(robots))
+        early_exit=cfg.cassie.qp_loop != "fixed", linsys=cfg.cassie.qp_linsys)
+    return tick.Settings(qp=qp_settings, qp_compact=cfg.cassie.qp_loop == "compact",
+                         physics=cfg.cassie.physics, robots=int(robots))
 
 
 PLANT = Plant(name="cassie", make_params=make_params, init=init, step=step,

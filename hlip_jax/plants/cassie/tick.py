@@ -102,10 +102,13 @@ class Context(NamedTuple):
 
 class Settings(NamedTuple):
     """Static settings of the tick (hashable; a change recompiles): the CLF-QP's ADMM
-    settings, the implementation that steps the physics, "jax" (MJX-JAX) or "warp"
-    (MJX's Warp implementation, :mod:`warp_physics`), and the number of robots stepped
-    together in one vmapped batch (Warp sizes its contact buffer for all of them at once)."""
+    settings, whether the robots' QPs are solved with straggler compaction across the vmapped
+    batch (:func:`hlip_jax.qp.solve`'s ``compact``), the implementation that steps the
+    physics, "jax" (MJX-JAX) or "warp" (MJX's Warp implementation, :mod:`warp_physics`), and
+    the number of robots stepped together in one vmapped batch (Warp sizes its contact buffer
+    for all of them at once)."""
     qp: object = clfqp.DEFAULT_SETTINGS
+    qp_compact: bool = False
     physics: str = "jax"
     robots: int = 1
 
@@ -348,8 +351,9 @@ def desired_outputs(ctx: Context, s: TickState, terms, cts: Contacts, u_des) -> 
 
 
 def clf_qp(ctx: Context, s: TickState, dm: mjx.Data, terms, cts: Contacts,
-           des: outputs.Desired, settings: clfqp.qp.Settings):
-    """CLF-QP torques; the foot motor of a foot in the contact set is passive (τ = 0).
+           des: outputs.Desired, settings: clfqp.qp.Settings, compact: bool = False):
+    """CLF-QP torques; the foot motor of a foot in the contact set is passive (τ = 0);
+    ``compact``: the batch's QPs with straggler compaction (:class:`Settings`).
     Returns (clfqp.Result, outputs.Measured, dynamics.Condensed)."""
     c = cassie()
     lo, hi = ctx.tau_lo, ctx.tau_hi
@@ -360,7 +364,8 @@ def clf_qp(ctx: Context, s: TickState, dm: mjx.Data, terms, cts: Contacts,
     meas = outputs.measure(terms, dm.qvel, c.index.root_dof)
     cond = dynamics.condense(terms, c.actuation, cts.sites, dynamics.spring_dofs(c))
     return clfqp.solve(meas, des, cond, cts.sites, lo, hi, ctx.gait.gains, s.warm, settings,
-                       fallback=ctx.gait.hold_unsolved > 0.5, active=running(s)), meas, cond
+                       fallback=ctx.gait.hold_unsolved > 0.5, active=running(s),
+                       compact=compact), meas, cond
 
 
 def proximity(s: TickState) -> jax.Array:
@@ -437,7 +442,7 @@ def tick(ctx: Context, s: TickState, settings: Settings):
     cts = contacts(ctx, s, dm, terms)
     u_des = stepping_target(ctx, s, terms)
     des = desired_outputs(ctx, s, terms, cts, u_des)
-    res, meas, cond = clf_qp(ctx, s, dm, terms, cts, des, settings.qp)
+    res, meas, cond = clf_qp(ctx, s, dm, terms, cts, des, settings.qp, settings.qp_compact)
     tau, s = actuate(ctx, s, res.tau)
     d_new = physics(ctx, s, tau, settings.physics, settings.robots)
     e, _ = outputs.errors(meas, des)
