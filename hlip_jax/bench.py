@@ -26,16 +26,18 @@ HEADER = ("| batch | devices | CLF-QP loop, physics | steps | compile + first [s
 
 
 def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: str = "while",
-            physics: str = "jax", qp_linsys: str = "cholesky"):
+            physics: str = "jax", qp_linsys: str = "cholesky", qp_rho_start: str = "default"):
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
     of docs/cassie_gait.md (the default gait preset's H-LIP timing and 3-state LQR stepping
     gain), the CLF-QP loop ``qp_loop``, its linear solve ``qp_linsys`` and the physics
-    implementation ``physics`` (``CassieConfig.qp_loop``, ``qp_linsys``, ``physics``)."""
+    implementation ``physics`` (``CassieConfig.qp_loop``, ``qp_linsys``, ``physics``), and
+    the CLF-QP's starting step size ``qp_rho_start`` (``CassieConfig.qp_rho_start``)."""
     from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
     from hlip_jax.plants.cassie import gaits
     W = gaits.preset(gaits.DEFAULT)
     budget = {} if qp_max_iter is None else {"qp_max_iter": qp_max_iter}
-    cassie = CassieConfig(qp_loop=qp_loop, physics=physics, qp_linsys=qp_linsys, **budget)
+    cassie = CassieConfig(qp_loop=qp_loop, physics=physics, qp_linsys=qp_linsys,
+                          qp_rho_start=qp_rho_start, **budget)
     return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
                            hlip=HLIPConfig(z0=W["hlip.z0"], t_ssp=W["hlip.t_ssp"],
                                            t_dsp=W["hlip.t_dsp"]),
@@ -132,14 +134,14 @@ def _admm_run(batch, static, B: int, steps: int, rows: list, emit) -> list[str]:
             f"{share:.2f} |", f"| {B} | {short} | {t_short:.2f} | {B * steps / t_short:,.0f} | |"]
 
 
-def _device_runs(batch, static, B: int, steps: int, devices, emit) -> list[tuple]:
+def _device_runs(batch, static, B: int, steps: int, devices, emit, loop: str) -> list[tuple]:
     """The batch timed on each device count of ``devices`` (a failure is reported and
-    skipped).  Returns (devices, compile + first [s], run [s], statuses, peak bytes) each."""
+    skipped; ``loop`` names the variant in the progress lines).  Returns (devices,
+    compile + first [s], run [s], statuses, peak bytes) each."""
     import jax
     import numpy as np
 
     from hlip_jax import rollout
-    loop = _variant(static)
     runs = []
     for n_dev in devices:
         if n_dev > len(jax.devices()) or B % n_dev:
@@ -168,12 +170,14 @@ def _loop(static) -> str:
     return "while" if static.plant_settings.qp.early_exit else "fixed"
 
 
-def _variant(static) -> str:
-    """'<CLF-QP loop> loop[, <linsys>], <physics> physics' of a build's static settings (the
-    linear solve named where it is not the default Cholesky)."""
+def _variant(static, rho_start: str = "default") -> str:
+    """'<CLF-QP loop> loop[, <linsys>][, ρ from the previous tick], <physics> physics' of a
+    build's static settings and its CLF-QP's starting step size (each named where it is not
+    the default)."""
     linsys = static.plant_settings.qp.linsys
     solve = "" if linsys == "cholesky" else f", {linsys}"
-    return f"{_loop(static)} loop{solve}, {static.plant_settings.physics} physics"
+    rho = ", ρ from the previous tick" if rho_start == "previous" else ""
+    return f"{_loop(static)} loop{solve}{rho}, {static.plant_settings.physics} physics"
 
 
 def _row(static, B: int, T: float, steps: int, prate: float, n_dev: int, t_first: float,
@@ -207,9 +211,11 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
                 qp_loops: Sequence[str] = ("while",),
                 physics: Sequence[str] = ("jax",),
                 on_row: Callable[[list], None] | None = None,
-                qp_linsys: Sequence[str] = ("cholesky",)) -> list[dict]:
+                qp_linsys: Sequence[str] = ("cholesky",),
+                qp_rho_start: Sequence[str] = ("default",)) -> list[dict]:
     """Run the benchmark for every batch size × CLF-QP loop (``qp_loops``, values of
     ``CassieConfig.qp_loop``) × linear solve (``qp_linsys``, ``CassieConfig.qp_linsys``) ×
+    starting step size (``qp_rho_start``, ``CassieConfig.qp_rho_start``) ×
     physics implementation (``physics``, values of ``CassieConfig.physics``) × device count; ``emit`` gets the markdown table (header, then
     one row per run).  With ``admm`` every batch size is also run (one device, the first
     variant) with the CLF-QP's ADMM budget cut to one convergence check, and the ADMM
@@ -227,20 +233,21 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
     emit(HEADER)
     rows, admm_rows = [], []
     for B in batches:
-        builds = [rollout.build(configs(B, duration, qp_loop=q, physics=ph, qp_linsys=ls))
-                  for ph in physics for q in qp_loops for ls in qp_linsys]
-        batch, static = builds[0]
+        builds = [(r, rollout.build(configs(B, duration, qp_loop=q, physics=ph, qp_linsys=ls,
+                                            qp_rho_start=r)))
+                  for ph in physics for q in qp_loops for ls in qp_linsys for r in qp_rho_start]
+        batch, static = builds[0][1]
         T = float(np.asarray(batch.t_ssp[0] + batch.t_dsp[0]))
         ticks = static.n_steps * int(round(T / control.CONTROL_DT))
         steps = ticks * control.SUBSTEPS
         prate = _physics_only_rate(B, ticks, steps)        # first: a cut-off run keeps it
         emit(f"batch {B}: physics only, 1 device: {prate:,.0f} physics steps/s")
-        for b_q, st_q in builds:
-            for run in _device_runs(b_q, st_q, B, steps, devices, emit):
-                rows.append(_row(st_q, B, T, steps, prate, *run))
+        for rho, (b_q, st_q) in builds:
+            for run in _device_runs(b_q, st_q, B, steps, devices, emit, _variant(st_q, rho)):
+                rows.append(dict(_row(st_q, B, T, steps, prate, *run), qp_rho_start=rho))
                 if on_row is not None:
                     on_row(rows)
-                emit(_table_row(rows[-1], _variant(st_q)))
+                emit(_table_row(rows[-1], _variant(st_q, rho)))
         if admm:
             admm_rows += _admm_run(batch, static, B, steps, rows, emit)
             if on_row is not None:

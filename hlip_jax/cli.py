@@ -10,7 +10,7 @@
     hlip-sweep ticks DIR SCENARIO            (the controller's 1 kHz log of one Cassie run)
     hlip-sweep s2s DIR [--scenarios REGEX] [--skip K]   (the robot's S2S map, least squares)
     hlip-sweep coverage DIR [--q Q] [--train-on FIELD=V1,V2]
-    hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...] [--qp-linsys ...]
+    hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...] [--qp-linsys ...] [--qp-rho-start ...]
 
 SWEEP is a path to a TOML sweep file or the name of a shipped one (``paper`` for
 ``sweeps/paper.toml``).  Exit codes: 0 success; 1 the run stopped incomplete (``--max-chunks``,
@@ -255,6 +255,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--qp-linsys", nargs="+", default=["cholesky"], choices=("cholesky", "inverse"),
                    metavar="SOLVE", help="CLF-QP linear solves to time, each on the same batch in this "
                    "process (cassie.qp_linsys: cholesky, inverse)")
+    b.add_argument("--qp-rho-start", nargs="+", default=["default"], choices=("default", "previous"),
+                   metavar="RHO", help="CLF-QP starting step sizes to time, each on the same batch "
+                   "in this process (cassie.qp_rho_start: default, previous)")
     b.add_argument("--physics", nargs="+", default=["jax"], choices=("jax", "warp"),
                    metavar="IMPL", help="physics implementations to time, each on the same batch in "
                    "this process (cassie.physics: jax, warp; warp needs warp-lang)")
@@ -501,7 +504,7 @@ def cmd_bench(args) -> int:
 
     write(bench.closed_loop(args.batch, args.duration, args.devices, admm=args.admm,
                             qp_loops=args.qp_loop, physics=args.physics, on_row=write,
-                            qp_linsys=args.qp_linsys))
+                            qp_linsys=args.qp_linsys, qp_rho_start=args.qp_rho_start))
     return EXIT_OK
 
 

@@ -131,6 +131,8 @@ class Solution(NamedTuple):
     bound, < 0 at an active lower bound).  z (…, m): A x projected onto [l, u].
     status (…,) int32: OSQP status code.  iterations (…,) int32: ADMM iterations run.
     prim_res, dual_res (…,): ∞-norm residuals ‖Ax − z‖ and ‖Px + q + Aᵀy‖ at the last check.
+    rho (…,): the step size ρ at the end (hand it to the next solve of a receding-horizon
+    problem as ``rho_start``, as OSQP's workspace keeps it between solves).
     For infeasible problems x, y, z are the last iterates (not a solution).
     """
 
@@ -141,6 +143,7 @@ class Solution(NamedTuple):
     iterations: jax.Array
     prim_res: jax.Array
     dual_res: jax.Array
+    rho: jax.Array
 
 
 def validate_settings(s: Settings) -> None:
@@ -384,12 +387,15 @@ def _sanitise(P, q, A, l, u, x0, y0, warm: bool):
     return P, q, A, l, u, x0, y0, valid, l_inf, u_inf
 
 
-def _initial_state(d: "_Scaled", s: Settings, x0, y0, valid, warm: bool) -> "_State":
-    """ρ, the first factorisation and the first iterate: cold (0) or warm (x̄ = D⁻¹x,
-    ȳ = c E⁻¹ y, z̄ = Āx̄)."""
+def _initial_state(d: "_Scaled", s: Settings, x0, y0, rho0, valid, warm: bool) -> "_State":
+    """ρ (``Settings.rho``, or ``rho0`` where it is a positive finite number), the first
+    factorisation and the first iterate: cold (0) or warm (x̄ = D⁻¹x, ȳ = c E⁻¹ y, z̄ = Āx̄)."""
     dtype = d.q.dtype
     n, m = d.q.shape[0], d.A.shape[0]
     rho = jnp.asarray(s.rho, dtype)
+    if rho0 is not None:
+        usable = jnp.isfinite(rho0) & (rho0 > 0)
+        rho = jnp.where(usable, jnp.clip(rho0, _RHO_MIN, _RHO_MAX), rho).astype(dtype)
     F = _factor(d, s.sigma, _rho_vec(rho, d), s.linsys)
     if warm:
         x = jnp.where(valid, x0 / d.D, 0.0)
@@ -505,13 +511,14 @@ def _blocks(d: "_Scaled", s: Settings, st: "_State") -> "_State":
     return lax.fori_loop(0, n_blocks(s), lambda _, st: _block(d, s, st), st)
 
 
-def _setup_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
+def _setup_one(P, q, A, l, u, x0, y0, rho0, s: Settings, warm: bool):
     """One problem (no batch axes) up to its first iterate: sanitise, scale (Ruiz equilibration
-    and cost scaling), factor.  Returns (scaled data, state, valid)."""
+    and cost scaling), factor.  ``rho0``: the starting ρ, or None for ``Settings.rho``.
+    Returns (scaled data, state, valid)."""
     P, q, A, l, u, x0, y0, valid, l_inf, u_inf = _sanitise(P, q, A, l, u, x0, y0, warm)
     Ps, qs, As, D, E, c = _ruiz(P, q, A, s.scaling)
     d = _Scaled(Ps, qs, As, E * l, E * u, l_inf, u_inf, D, E, c)
-    return d, _initial_state(d, s, x0, y0, valid, warm), valid
+    return d, _initial_state(d, s, x0, y0, rho0, valid, warm), valid
 
 
 def _finish_one(d: _Scaled, st: _State, valid) -> Solution:
@@ -520,13 +527,13 @@ def _finish_one(d: _Scaled, st: _State, valid) -> Solution:
     x = jnp.where(valid, d.D * st.x, nan)
     y = jnp.where(valid, d.E * st.y / d.c, nan)
     z = jnp.where(valid, st.z / d.E, nan)
-    return Solution(x, y, z, st.status, st.it, st.prim_res, st.dual_res)
+    return Solution(x, y, z, st.status, st.it, st.prim_res, st.dual_res, st.rho)
 
 
-def _solve_one(P, q, A, l, u, x0, y0, s: Settings, warm: bool):
+def _solve_one(P, q, A, l, u, x0, y0, rho0, s: Settings, warm: bool):
     """Solve one problem (no batch axes); traced under jit / vmap: set up, blocks of ADMM steps
     until every status is final, unscale."""
-    d, st, valid = _setup_one(P, q, A, l, u, x0, y0, s, warm)
+    d, st, valid = _setup_one(P, q, A, l, u, x0, y0, rho0, s, warm)
     return _finish_one(d, _blocks(d, s, st), valid)
 
 
@@ -572,24 +579,26 @@ def _solve_compacted(args, s: Settings, warm: bool):
     return jax.vmap(_finish_one)(d, st, valid)
 
 
-def _solve_flat(P, q, A, l, u, x0, y0, settings: Settings, warm: bool, batched: bool, chunk: int,
-                compact: bool):
+def _solve_flat(P, q, A, l, u, x0, y0, rho0, settings: Settings, warm: bool, batched: bool,
+                chunk: int, compact: bool):
+    """``rho0``: starting ρ per problem, or None (no leaves: ``Settings.rho``)."""
+    args = (P, q, A, l, u, x0, y0, rho0)
     with jax.default_matmul_precision("highest"):
         f = lambda *a: _solve_one(*a, settings, warm)
         if not batched:
-            return f(P, q, A, l, u, x0, y0)
+            return f(*args)
         B = q.shape[0]
         if compact and settings.early_exit and chunk >= B:
-            return _solve_compacted((P, q, A, l, u, x0, y0), settings, warm)
+            return _solve_compacted(args, settings, warm)
         if chunk >= B:
-            return jax.vmap(f)(P, q, A, l, u, x0, y0)
+            return jax.vmap(f)(*args)
         # Chunks of the batch run one after another (lax.map), each as a vmapped while loop that
         # stops when its own slowest problem is done and whose data stays in cache.
-        args = (P, q, A, l, u, x0, y0)
         pad = -B % chunk
         if pad:  # pad with copies of the first problem (dropped again below)
-            args = tuple(jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad,) + a.shape[1:])]) for a in args)
-        args = tuple(a.reshape((-1, chunk) + a.shape[1:]) for a in args)
+            args = jax.tree.map(lambda a: jnp.concatenate(
+                [a, jnp.broadcast_to(a[:1], (pad,) + a.shape[1:])]), args)
+        args = jax.tree.map(lambda a: a.reshape((-1, chunk) + a.shape[1:]), args)
         out = lax.map(lambda a: jax.vmap(f)(*a), args)
         return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:])[:B], out)
 
@@ -603,23 +612,25 @@ def default_chunk() -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def _compacted_under_vmap(settings: Settings, warm: bool):
+def _compacted_under_vmap(settings: Settings, warm: bool, with_rho: bool):
     """One problem's solve whose batching rule solves a vmapped batch in one piece with
     straggler compaction (``jax.custom_batching.custom_vmap``): a caller that vmaps a
     per-problem function around :func:`solve` (the Cassie tick over its robots) gets the
-    batch's tiers instead of a loop that runs until its slowest problem is done."""
+    batch's tiers instead of a loop that runs until its slowest problem is done.  Its
+    arguments are P, q, A, l, u, x0, y0 and, ``with_rho``, the starting ρ."""
+    full = lambda args: tuple(args) + ((None,) if not with_rho else ())
 
     @jax.custom_batching.custom_vmap
     def one(*args):
-        return _solve_jit(*args, settings=settings, warm=warm, batched=False, chunk=1,
+        return _solve_jit(*full(args), settings=settings, warm=warm, batched=False, chunk=1,
                           compact=False)
 
     @one.def_vmap
     def batched(axis_size, in_batched, *args):
         args = [a if b else jnp.broadcast_to(a, (axis_size,) + a.shape)
                 for a, b in zip(args, in_batched)]
-        sol = _solve_jit(*args, settings=settings, warm=warm, batched=True, chunk=axis_size,
-                         compact=True)
+        sol = _solve_jit(*full(args), settings=settings, warm=warm, batched=True,
+                         chunk=axis_size, compact=True)
         return sol, jax.tree.map(lambda _: True, sol)
 
     return one
@@ -634,7 +645,8 @@ def default_compact() -> bool:
 
 def solve(P, q, A, l, u, *, settings: Settings = Settings(),
           warm_start: Optional[Tuple[jax.Array, jax.Array]] = None,
-          batch_chunk: Optional[int] = None, compact: Optional[bool] = None) -> Solution:
+          batch_chunk: Optional[int] = None, compact: Optional[bool] = None,
+          rho_start: Optional[jax.Array] = None) -> Solution:
     """Solve ``min ½xᵀPx + qᵀx  s.t.  l ≤ Ax ≤ u`` for one problem or a batch.
 
     Args:
@@ -645,6 +657,9 @@ def solve(P, q, A, l, u, *, settings: Settings = Settings(),
       settings: static ``Settings``.
       warm_start: optional ``(x, y)`` with shapes (…, n), (…, m) (e.g. the previous solution of a
         receding-horizon problem); z starts at A x.
+      rho_start: optional (…,) starting step size ρ of each problem (e.g. ``Solution.rho`` of
+        the previous solve, as OSQP keeps ρ between warm-started solves); entries that are
+        not positive and finite start from ``Settings.rho``.  Default: ``Settings.rho``.
       batch_chunk: problems per vmapped chunk (chunks run sequentially, each until its own
         problems are done); default ``default_chunk()``.  Results do not depend on it.
       compact: run a batch solved in one piece with straggler compaction (:func:`_compacted`;
@@ -697,17 +712,21 @@ def solve(P, q, A, l, u, *, settings: Settings = Settings(),
         u = jnp.full(u.shape[:-1] + (1,), jnp.inf, dtype)
         y0 = jnp.zeros(y0.shape[:-1] + (1,), dtype)
         m_eff = 1
-    batch = jnp.broadcast_shapes(P.shape[:-2], q.shape[:-1], A.shape[:-2], l.shape[:-1],
-                                 u.shape[:-1], x0.shape[:-1], y0.shape[:-1])
-    shapes = ((n, n), (n,), (m_eff, n), (m_eff,), (m_eff,), (n,), (m_eff,))
+    arrays = [P, q, A, l, u, x0, y0]
+    shapes = [(n, n), (n,), (m_eff, n), (m_eff,), (m_eff,), (n,), (m_eff,)]
+    if rho_start is not None:
+        arrays.append(jnp.asarray(rho_start))
+        shapes.append(())
+    batch = jnp.broadcast_shapes(*(a.shape[:a.ndim - len(sh)] for a, sh in zip(arrays, shapes)))
     args = [jnp.broadcast_to(a.astype(dtype), batch + sh).reshape((-1,) + sh) if batch else
-            a.astype(dtype) for a, sh in zip((P, q, A, l, u, x0, y0), shapes)]
+            a.astype(dtype) for a, sh in zip(arrays, shapes)]
     warm = warm_start is not None
     if not batch and compact:
-        sol = _compacted_under_vmap(settings, warm)(*args)
+        sol = _compacted_under_vmap(settings, warm, rho_start is not None)(*args)
     else:
-        sol = _solve_jit(*args, settings=settings, warm=warm, batched=bool(batch), chunk=chunk,
-                         compact=default_compact() if compact is None else compact)
+        rho0 = args[7] if rho_start is not None else None
+        sol = _solve_jit(*args[:7], rho0, settings=settings, warm=warm, batched=bool(batch),
+                         chunk=chunk, compact=default_compact() if compact is None else compact)
     if batch:
         sol = jax.tree.map(lambda a: a.reshape(batch + a.shape[1:]), sol)
     if m == 0:

@@ -232,6 +232,27 @@ def test_compacted_batch_gives_the_same_torques(cassie, terms_fn):
         np.testing.assert_array_equal(a.iterations, b.iterations)
 
 
+def test_rho_previous_starts_from_the_previous_ticks_step_size(cassie, terms_fn):
+    # cassie.qp_rho_start = "previous": the second tick's ADMM starts from the first tick's
+    # final ρ (warm[2]).  Handed the default ρ instead, it is the default solve exactly; the
+    # torques of both starts agree to 1e-4 N m (float64 at eps 1e-9, as in the OSQP
+    # comparison above: at 1e-7 the iterates of this problem still sit 1e-2 N m apart).
+    meas, des, cond, contact, lo, hi = _left_foot_problem(cassie, terms_fn, seed=9)
+    s = clfqp.DEFAULT_SETTINGS._replace(eps_abs=1e-9, eps_rel=1e-9, max_iter=200000)
+    g = control.STAND_GAINS
+    r0 = clfqp.solve(meas, des, cond, contact, lo, hi, g, control.warm_zeros(cassie, jnp.float64), s)
+    assert float(r0.warm[2]) != s.rho                      # ρ adapted in the first solve
+    des2 = des._replace(y=des.y + 0.002)                   # the next tick asks a little more
+    prev = clfqp.solve(meas, des2, cond, contact, lo, hi, g, r0.warm, s, rho_previous=True)
+    default = clfqp.solve(meas, des2, cond, contact, lo, hi, g, r0.warm, s)
+    reset = (r0.warm[0], r0.warm[1], jnp.asarray(s.rho, jnp.float64))
+    same = clfqp.solve(meas, des2, cond, contact, lo, hi, g, reset, s, rho_previous=True)
+    np.testing.assert_array_equal(default.tau, same.tau)
+    assert int(default.iterations) == int(same.iterations)
+    assert int(prev.status) == qp.SOLVED and int(default.status) == qp.SOLVED
+    np.testing.assert_allclose(prev.tau, default.tau, atol=1e-4, rtol=0)
+
+
 def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
     # cassie.qp_linsys = "inverse" (K⁻¹ formed once per factorisation, then products) against
     # the Cholesky solves of every iteration, with the tick's settings, cold and warm: the

@@ -379,3 +379,29 @@ def test_compaction_under_an_external_vmap():
     # unbatched, the same call is the plain solve
     c = qp.solve(*(x[0] for x in args), settings=s, compact=True)
     np.testing.assert_allclose(c.x, a.x[0], atol=1e-12, rtol=0)
+
+
+def test_rho_start_sets_the_starting_step_size():
+    # rho_start is the ADMM step size the iteration starts from (kept to the end without
+    # adaptation), the solution is OSQP's whatever ρ (1e-5 relative at eps 1e-7, module doc);
+    # Settings.rho, and entries that are not positive and finite, give the default solve
+    # exactly.
+    rng = np.random.default_rng(1000 * 16 + 32)
+    probs = [random_qp(rng, 16, 32) for _ in range(3)]
+    args = stack(probs)
+    fixed = TIGHT64._replace(adaptive_rho=False)
+    rhos = np.array([0.01, 1.0, 10.0])
+    sol = qp.solve(*args, settings=fixed, rho_start=rhos)
+    np.testing.assert_array_equal(np.asarray(sol.rho), rhos)
+    for k, prob in enumerate(probs):
+        assert int(sol.status[k]) == qp.SOLVED
+        assert rel_err(np.asarray(sol.x[k]), osqp_solve(*prob).x) < 1e-5
+    # the same problem from three starting ρ: different iteration counts, one solution
+    same = [args[0][:1].repeat(3, 0)] + [a[:1].repeat(3, 0) for a in args[1:]]
+    spread = qp.solve(*same, settings=fixed, rho_start=rhos)
+    assert len(set(np.asarray(spread.iterations).tolist())) == 3
+    default = qp.solve(*args, settings=TIGHT64)
+    for start in (np.full(3, TIGHT64.rho), np.array([np.nan, 0.0, -1.0])):
+        other = qp.solve(*args, settings=TIGHT64, rho_start=start)
+        np.testing.assert_array_equal(default.x, other.x)
+        np.testing.assert_array_equal(default.iterations, other.iterations)

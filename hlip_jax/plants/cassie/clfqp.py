@@ -190,7 +190,7 @@ class Result(NamedTuple):
     Vdot: jax.Array       # (N_GROUPS,) predicted V̇_g at the returned τ
     status: jax.Array
     iterations: jax.Array
-    warm: tuple           # (x, y) for the next tick
+    warm: tuple           # (x, y, ρ) for the next tick
 
 
 def idle(prob: Problem, warm, active):
@@ -211,8 +211,9 @@ def idle(prob: Problem, warm, active):
 
 def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
           settings: qp.Settings = DEFAULT_SETTINGS, fallback=False, active=True,
-          compact: bool = False) -> Result:
-    """Build and solve the CLF-QP; ``warm`` = (x, y) from the previous tick (zeros at start).
+          compact: bool = False, rho_previous=False) -> Result:
+    """Build and solve the CLF-QP; ``warm`` = (x, y, ρ) from the previous tick (zeros and
+    ``settings.rho`` at start).
 
     ``fallback`` (bool or traced boolean scalar): when the QP is not solved, return the previous
     tick's solution instead of the clipped last iterate (per scenario while walking:
@@ -220,11 +221,15 @@ def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
     ``active`` false (traced boolean): the tick's torques are not used; a trivial QP is solved
     instead (:func:`idle`) and the result carries ``warm`` unchanged.  ``compact`` (static):
     a batch vmapped around this call is solved with straggler compaction
-    (:func:`hlip_jax.qp.solve`)."""
+    (:func:`hlip_jax.qp.solve`).  ``rho_previous`` (bool or traced boolean scalar): start
+    the ADMM from the previous tick's final step size ρ (``warm[2]``) instead of
+    ``settings.rho``, as OSQP does when its workspace is updated and warm-started."""
     nu = jnp.shape(tau_min)[0]
     prob = build(meas, des, cond, contact, tau_min, tau_max, gains, tau_prev=warm[0][:nu])
     P, q, l, u, w = idle(prob, warm, active)
-    sol = qp.solve(P, q, prob.A, l, u, settings=settings, warm_start=w, compact=compact)
+    rho0 = jnp.where(rho_previous, warm[2], settings.rho)
+    sol = qp.solve(P, q, prob.A, l, u, settings=settings, warm_start=w, compact=compact,
+                   rho_start=rho0)
     # with ``fallback`` a problem the ADMM budget did not solve (typically infeasible contact
     # rows at an impact) keeps the previous tick's torques instead of an unconverged iterate;
     # without it only a non-finite iterate falls back
@@ -233,6 +238,7 @@ def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
     ok = finite & (solved | jnp.logical_not(fallback)) & active
     x = jnp.where(ok, sol.x, warm[0])
     y = jnp.where(ok, sol.y, warm[1])
+    rho = jnp.where(ok, sol.rho, warm[2])
     tau = jnp.clip(x[:nu], tau_min, tau_max)
     return Result(tau=tau, delta=x[nu:], V=prob.V, Vdot=prob.Vdot_free + prob.LgV_A @ tau,
-                  status=sol.status, iterations=sol.iterations, warm=(x, y))
+                  status=sol.status, iterations=sol.iterations, warm=(x, y, rho))

@@ -93,7 +93,8 @@ def zero_torque_rollout(cassie: model.Cassie, d: mjx.Data, n_ticks: int) -> mjx.
 
 def warm_zeros(cassie: model.Cassie, dtype):
     nu = cassie.index.nu
-    return (jnp.zeros(clfqp.n_vars(nu), dtype), jnp.zeros(clfqp.n_rows(nu), dtype))
+    return (jnp.zeros(clfqp.n_vars(nu), dtype), jnp.zeros(clfqp.n_rows(nu), dtype),
+            jnp.asarray(clfqp.DEFAULT_SETTINGS.rho, dtype))
 
 
 class StandLog(NamedTuple):

@@ -55,6 +55,8 @@ class Gait(NamedTuple):
                                # shin, right heel [N m s/rad]
     hold_unsolved: jax.Array   # 1.0: an unsolved CLF-QP keeps the previous torques, 0.0: last iterate
     from_stance: jax.Array     # 1.0: heights measured from the stance foot's sole, 0.0: from z = 0
+    rho_previous: jax.Array    # 1.0: the CLF-QP starts from the previous tick's ADMM step size ρ,
+                               # 0.0: from the solver's default
     gains: clfqp.Gains
 
 
@@ -85,6 +87,7 @@ def make_gait(cfg=None) -> Gait:
              damping=np.array([cfg.shin_damping, cfg.heel_damping] * 2, float),
              hold_unsolved=f(cfg.qp_fallback == "hold"),
              from_stance=f(cfg.height_reference == "stance_foot"),
+             rho_previous=f(cfg.qp_rho_start == "previous"),
              gains=clfqp.make_gains(omega, weight=weight, w_chatter=cfg.w_chatter))
     _GAIT_CACHE[cfg] = g
     return g

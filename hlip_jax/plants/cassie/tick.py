@@ -150,6 +150,7 @@ class TickLog(NamedTuple):
     V: jax.Array             # CLF value, summed over the output groups
     contact: jax.Array       # (4,) sites in the constraint set
     status: jax.Array        # CLF-QP status (hlip_jax.qp codes)
+    iterations: jax.Array    # CLF-QP ADMM iterations of the tick
     pelvis: jax.Array        # (7,) pelvis position [m] and quaternion
     phase: jax.Array         # DSP 0, SSP 1, done 2
     u_des: jax.Array         # (2,) step the swing target aims at (stance-relative, world) [m]
@@ -365,7 +366,7 @@ def clf_qp(ctx: Context, s: TickState, dm: mjx.Data, terms, cts: Contacts,
     cond = dynamics.condense(terms, c.actuation, cts.sites, dynamics.spring_dofs(c))
     return clfqp.solve(meas, des, cond, cts.sites, lo, hi, ctx.gait.gains, s.warm, settings,
                        fallback=ctx.gait.hold_unsolved > 0.5, active=running(s),
-                       compact=compact), meas, cond
+                       compact=compact, rho_previous=ctx.gait.rho_previous > 0.5), meas, cond
 
 
 def proximity(s: TickState) -> jax.Array:
@@ -450,7 +451,8 @@ def tick(ctx: Context, s: TickState, settings: Settings):
     grf = (cond.lam_tau @ res.tau + cond.lam0)[c0:c0 + dynamics.N_CONTACT_ROWS].reshape(4, 3)
     ydd_model = meas.J @ (cond.qdd_tau @ tau + cond.qdd0) + meas.jdqd
     log = TickLog(com=terms.com, feet=outputs.foot_centres(terms), tau=tau, V=jnp.sum(res.V),
-                  contact=cts.sites, status=res.status, pelvis=s.d.qpos[:7], phase=s.phase,
+                  contact=cts.sites, status=res.status, iterations=res.iterations,
+                  pelvis=s.d.qpos[:7], phase=s.phase,
                   u_des=u_des, y_err=e, grf=grf, spring=s.d.qpos[realism.layout(cassie()).spring_qpos],
                   gap=gap, ydot=meas.ydot, ydd_model=ydd_model)
     s = s._replace(gap=jnp.where(running(s), jnp.minimum(s.gap, gap), s.gap))
