@@ -45,7 +45,7 @@ def test_a_cut_off_bench_keeps_what_it_measured(monkeypatch, tmp_path):
     out = tmp_path / "rows.json"
     seen = []
 
-    def device_runs(batch, static, B, steps, devices, emit):
+    def device_runs(batch, static, B, steps, devices, emit, label):
         if seen:                        # the second variant: the row of the first is on disk
             assert [r["physics"] for r in json.loads(out.read_text())] == ["jax"]
         seen.append(static.plant_settings.physics)

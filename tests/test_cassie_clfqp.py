@@ -307,9 +307,9 @@ def test_chatter_term_adds_a_proximal_cost_and_is_inert_at_zero(cassie, terms_fn
     # a proximal term centred on the plain QP's own optimum leaves that optimum unchanged
     # (1e-5 N m at tolerance 1e-9: both solves' own error)
     st = qp.Settings(eps_abs=1e-9, eps_rel=1e-9, max_iter=200000)
-    zero = (jnp.zeros(nu + clfqp.N_GROUPS), jnp.zeros(plain.l.shape[0]))
+    zero = (jnp.zeros(nu + clfqp.N_GROUPS), jnp.zeros(plain.l.shape[0]), jnp.asarray(st.rho))
     star = clfqp.solve(meas, des, cond, contact, lo, hi, g0, zero, st)
-    warm = (jnp.zeros(nu + clfqp.N_GROUPS).at[:nu].set(star.tau), zero[1])
+    warm = (jnp.zeros(nu + clfqp.N_GROUPS).at[:nu].set(star.tau), zero[1], zero[2])
     res = clfqp.solve(meas, des, cond, contact, lo, hi, g0._replace(w_chatter=np.float64(50.0)),
                       warm, st)
     assert int(star.status) == int(res.status) == qp.SOLVED

@@ -38,6 +38,7 @@ PRESETS: dict[str, dict[str, object]] = {
         "cassie.omega_yaw": 7.5996,
         "cassie.weight_pelvis": 6.3141,
         "cassie.height_reference": "stance_foot",
+        "cassie.qp_rho_start": "previous",
     },
 }
 
