@@ -26,7 +26,7 @@ HEADER = ("| batch | devices | CLF-QP loop, physics | steps | compile + first [s
 
 
 def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: str = "while",
-            physics: str = "jax", qp_linsys: str = "cholesky", qp_rho_start: str = "default"):
+            physics: str = "jax", qp_linsys: str = "cholesky", qp_rho_start: str = "previous"):
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
     of docs/cassie_gait.md (the default gait preset's H-LIP timing and 3-state LQR stepping
     gain), the CLF-QP loop ``qp_loop``, its linear solve ``qp_linsys`` and the physics
@@ -170,13 +170,13 @@ def _loop(static) -> str:
     return "while" if static.plant_settings.qp.early_exit else "fixed"
 
 
-def _variant(static, rho_start: str = "default") -> str:
-    """'<CLF-QP loop> loop[, <linsys>][, ρ from the previous tick], <physics> physics' of a
+def _variant(static, rho_start: str = "previous") -> str:
+    """'<CLF-QP loop> loop[, <linsys>][, ρ from 0.1 every tick], <physics> physics' of a
     build's static settings and its CLF-QP's starting step size (each named where it is not
     the default)."""
     linsys = static.plant_settings.qp.linsys
     solve = "" if linsys == "cholesky" else f", {linsys}"
-    rho = ", ρ from the previous tick" if rho_start == "previous" else ""
+    rho = ", ρ from 0.1 every tick" if rho_start == "default" else ""
     return f"{_loop(static)} loop{solve}{rho}, {static.plant_settings.physics} physics"
 
 
@@ -212,7 +212,7 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
                 physics: Sequence[str] = ("jax",),
                 on_row: Callable[[list], None] | None = None,
                 qp_linsys: Sequence[str] = ("cholesky",),
-                qp_rho_start: Sequence[str] = ("default",)) -> list[dict]:
+                qp_rho_start: Sequence[str] = ("previous",)) -> list[dict]:
     """Run the benchmark for every batch size × CLF-QP loop (``qp_loops``, values of
     ``CassieConfig.qp_loop``) × linear solve (``qp_linsys``, ``CassieConfig.qp_linsys``) ×
     starting step size (``qp_rho_start``, ``CassieConfig.qp_rho_start``) ×

@@ -10,7 +10,8 @@
     hlip-sweep ticks DIR SCENARIO            (the controller's 1 kHz log of one Cassie run)
     hlip-sweep s2s DIR [--scenarios REGEX] [--skip K]   (the robot's S2S map, least squares)
     hlip-sweep coverage DIR [--q Q] [--train-on FIELD=V1,V2]
-    hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...] [--qp-linsys ...] [--qp-rho-start ...]
+    hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...] [--qp-linsys ...]
+                     [--qp-rho-start ...]
 
 SWEEP is a path to a TOML sweep file or the name of a shipped one (``paper`` for
 ``sweeps/paper.toml``).  Exit codes: 0 success; 1 the run stopped incomplete (``--max-chunks``,
@@ -182,6 +183,37 @@ def _add_run(sub) -> None:
     _cache_options(r)
 
 
+def _bench_parser(sub) -> None:
+    """The ``bench`` subcommand's arguments."""
+    b = sub.add_parser("bench", help="closed-loop Cassie throughput against physics-only MJX",
+                       description="Time the closed loop (MPC → stepping law → CLF-QP on MJX) on "
+                       "straight-line scenarios against zero-torque MJX on the same batch, in one "
+                       "process; print a markdown table (see hlip_jax/bench.py).")
+    b.add_argument("--batch", type=_positive_int, nargs="+", default=[2], metavar="N",
+                   help="batch sizes (robots per compiled call)")
+    b.add_argument("--duration", type=_finite_float, default=0.6, metavar="S",
+                   help="simulated seconds per robot (> 0)")
+    b.add_argument("--devices", type=_positive_int, nargs="+", default=[1], metavar="N",
+                   help="device counts: the same batch sharded over the first N local devices")
+    b.add_argument("--admm", action="store_true",
+                   help="also time each batch with the CLF-QP's ADMM budget cut to one "
+                   "convergence check and report the ADMM iterations' share of the tick")
+    b.add_argument("--qp-loop", nargs="+", default=["while"], choices=("while", "fixed", "compact"),
+                   metavar="LOOP", help="CLF-QP block loops to time, each on the same batch in this "
+                   "process (cassie.qp_loop: while, fixed, compact)")
+    b.add_argument("--qp-linsys", nargs="+", default=["cholesky"], choices=("cholesky", "inverse"),
+                   metavar="SOLVE", help="CLF-QP linear solves to time, each on the same batch in this "
+                   "process (cassie.qp_linsys: cholesky, inverse)")
+    b.add_argument("--qp-rho-start", nargs="+", default=["previous"],
+                   choices=("default", "previous"), metavar="RHO",
+                   help="CLF-QP starting step sizes to time, each on the same batch in this "
+                   "process (cassie.qp_rho_start: default, previous)")
+    b.add_argument("--physics", nargs="+", default=["jax"], choices=("jax", "warp"),
+                   metavar="IMPL", help="physics implementations to time, each on the same batch in "
+                   "this process (cassie.physics: jax, warp; warp needs warp-lang)")
+    b.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog=PROG, description="Batch evaluator of H-LIP step planning: run a sweep of "
@@ -236,32 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
     _sweep_overrides(s)
     s.add_argument("--scenarios", action="store_true", help="also list every scenario name")
 
-    b = sub.add_parser("bench", help="closed-loop Cassie throughput against physics-only MJX",
-                       description="Time the closed loop (MPC → stepping law → CLF-QP on MJX) on "
-                       "straight-line scenarios against zero-torque MJX on the same batch, in one "
-                       "process; print a markdown table (see hlip_jax/bench.py).")
-    b.add_argument("--batch", type=_positive_int, nargs="+", default=[2], metavar="N",
-                   help="batch sizes (robots per compiled call)")
-    b.add_argument("--duration", type=_finite_float, default=0.6, metavar="S",
-                   help="simulated seconds per robot (> 0)")
-    b.add_argument("--devices", type=_positive_int, nargs="+", default=[1], metavar="N",
-                   help="device counts: the same batch sharded over the first N local devices")
-    b.add_argument("--admm", action="store_true",
-                   help="also time each batch with the CLF-QP's ADMM budget cut to one "
-                   "convergence check and report the ADMM iterations' share of the tick")
-    b.add_argument("--qp-loop", nargs="+", default=["while"], choices=("while", "fixed", "compact"),
-                   metavar="LOOP", help="CLF-QP block loops to time, each on the same batch in this "
-                   "process (cassie.qp_loop: while, fixed, compact)")
-    b.add_argument("--qp-linsys", nargs="+", default=["cholesky"], choices=("cholesky", "inverse"),
-                   metavar="SOLVE", help="CLF-QP linear solves to time, each on the same batch in this "
-                   "process (cassie.qp_linsys: cholesky, inverse)")
-    b.add_argument("--qp-rho-start", nargs="+", default=["default"], choices=("default", "previous"),
-                   metavar="RHO", help="CLF-QP starting step sizes to time, each on the same batch "
-                   "in this process (cassie.qp_rho_start: default, previous)")
-    b.add_argument("--physics", nargs="+", default=["jax"], choices=("jax", "warp"),
-                   metavar="IMPL", help="physics implementations to time, each on the same batch in "
-                   "this process (cassie.physics: jax, warp; warp needs warp-lang)")
-    b.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
+    _bench_parser(sub)
     return ap
 
 

@@ -603,7 +603,8 @@ def _solve_flat(P, q, A, l, u, x0, y0, rho0, settings: Settings, warm: bool, bat
         return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:])[:B], out)
 
 
-_solve_jit = jax.jit(_solve_flat, static_argnames=("settings", "warm", "batched", "chunk", "compact"))
+_solve_jit = jax.jit(_solve_flat,
+                     static_argnames=("settings", "warm", "batched", "chunk", "compact"))
 
 
 def default_chunk() -> int:
@@ -643,6 +644,38 @@ def default_compact() -> bool:
     return jax.default_backend() != "cpu"
 
 
+def _checked_arrays(P, q, A, l, u, warm_start):
+    """The problem's arrays with their shapes checked (``ValueError`` naming the argument):
+    (P, q, A, l, u, x0, y0, n, m, dtype); x0, y0 are zeros without a warm start."""
+    P, q, A, l, u = (jnp.asarray(a) for a in (P, q, A, l, u))
+    dtype = jnp.result_type(P, q, A, l, u, float)
+    if warm_start is not None:
+        x0, y0 = (jnp.asarray(a) for a in warm_start)
+        dtype = jnp.result_type(dtype, x0, y0)
+    if P.ndim < 2 or P.shape[-1] != P.shape[-2]:
+        raise ValueError(f"P must have shape (..., n, n), got {P.shape}")
+    n = P.shape[-1]
+    if n < 1:
+        raise ValueError("P must have n >= 1 variables")
+    if q.ndim < 1 or q.shape[-1] != n:
+        raise ValueError(f"q must have shape (..., {n}), got {q.shape}")
+    if A.ndim < 2 or A.shape[-1] != n:
+        raise ValueError(f"A must have shape (..., m, {n}), got {A.shape}")
+    m = A.shape[-2]
+    for name, v in (("l", l), ("u", u)):
+        if v.ndim < 1 or v.shape[-1] != m:
+            raise ValueError(f"{name} must have shape (..., {m}), got {v.shape}")
+    if warm_start is not None:
+        if x0.ndim < 1 or x0.shape[-1] != n:
+            raise ValueError(f"warm_start x must have shape (..., {n}), got {x0.shape}")
+        if y0.ndim < 1 or y0.shape[-1] != m:
+            raise ValueError(f"warm_start y must have shape (..., {m}), got {y0.shape}")
+    else:
+        x0 = jnp.zeros((n,), dtype)
+        y0 = jnp.zeros((m,), dtype)
+    return P, q, A, l, u, x0, y0, n, m, dtype
+
+
 def solve(P, q, A, l, u, *, settings: Settings = Settings(),
           warm_start: Optional[Tuple[jax.Array, jax.Array]] = None,
           batch_chunk: Optional[int] = None, compact: Optional[bool] = None,
@@ -679,32 +712,7 @@ def solve(P, q, A, l, u, *, settings: Settings = Settings(),
         raise ValueError(f"batch_chunk = {batch_chunk!r} is outside the allowed range: integers >= 1")
     if not (compact is None or isinstance(compact, bool)):
         raise ValueError(f"compact = {compact!r} is outside the allowed range: True or False")
-    P, q, A, l, u = (jnp.asarray(a) for a in (P, q, A, l, u))
-    dtype = jnp.result_type(P, q, A, l, u, float)
-    if warm_start is not None:
-        x0, y0 = (jnp.asarray(a) for a in warm_start)
-        dtype = jnp.result_type(dtype, x0, y0)
-    if P.ndim < 2 or P.shape[-1] != P.shape[-2]:
-        raise ValueError(f"P must have shape (..., n, n), got {P.shape}")
-    n = P.shape[-1]
-    if n < 1:
-        raise ValueError("P must have n >= 1 variables")
-    if q.ndim < 1 or q.shape[-1] != n:
-        raise ValueError(f"q must have shape (..., {n}), got {q.shape}")
-    if A.ndim < 2 or A.shape[-1] != n:
-        raise ValueError(f"A must have shape (..., m, {n}), got {A.shape}")
-    m = A.shape[-2]
-    for name, v in (("l", l), ("u", u)):
-        if v.ndim < 1 or v.shape[-1] != m:
-            raise ValueError(f"{name} must have shape (..., {m}), got {v.shape}")
-    if warm_start is not None:
-        if x0.ndim < 1 or x0.shape[-1] != n:
-            raise ValueError(f"warm_start x must have shape (..., {n}), got {x0.shape}")
-        if y0.ndim < 1 or y0.shape[-1] != m:
-            raise ValueError(f"warm_start y must have shape (..., {m}), got {y0.shape}")
-    else:
-        x0 = jnp.zeros((n,), dtype)
-        y0 = jnp.zeros((m,), dtype)
+    P, q, A, l, u, x0, y0, n, m, dtype = _checked_arrays(P, q, A, l, u, warm_start)
     m_eff = m
     if m == 0:  # no constraints: one free row keeps every shape non-empty
         A = jnp.zeros(A.shape[:-2] + (1, n), dtype)

@@ -24,6 +24,9 @@ def test_bench_configs_carry_the_admm_budget():
     assert bench.configs(1, 0.6)[0].cassie.physics == "jax"
     assert bench.configs(1, 0.6, qp_linsys="inverse")[0].cassie.qp_linsys == "inverse"
     assert bench.configs(1, 0.6)[0].cassie.qp_linsys == "cholesky"
+    # the CLF-QP's starting step size: the preset's (the previous tick's) unless asked
+    assert bench.configs(1, 0.6)[0].cassie.qp_rho_start == "previous"
+    assert bench.configs(1, 0.6, qp_rho_start="default")[0].cassie.qp_rho_start == "default"
 
 
 def test_a_cut_off_bench_keeps_what_it_measured(monkeypatch, tmp_path):
