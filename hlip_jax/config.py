@@ -244,6 +244,18 @@ class RealismConfig:
                                "rough_height] with the scenario's seed (the controller does not "
                                "know them; not with step_height)", "m")
 
+    def ground_kind(self) -> str:
+        """The least ground kind (:data:`GROUND_KINDS`) whose scene this scenario walks on:
+        "rough" with rough ground, "step" with a step in the ground, else "flat"."""
+        if self.rough_height != 0.0:
+            return "rough"
+        return "step" if self.step_height != 0.0 else "flat"
+
+
+#: a batch's ground kinds, each one's scene holding what the kinds before it need: "flat" the
+#: plain scene, "step" with the terrain block, "rough" with the block and the height field
+GROUND_KINDS = ("flat", "step", "rough")
+
 
 @dataclass(frozen=True)
 class ScenarioConfig:

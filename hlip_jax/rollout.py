@@ -31,7 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from hlip_jax import hlip, mpc, paths, progress, qp, robust
-from hlip_jax.config import STATIC_FIELDS, RealismConfig, ScenarioConfig, field_value
+from hlip_jax.config import (GROUND_KINDS, STATIC_FIELDS, RealismConfig, ScenarioConfig,
+                             field_value)
 from hlip_jax import plants
 from hlip_jax.plants.base import StepCommand
 from hlip_jax.steplog import STATUS_FELL, STATUS_NONFINITE, STATUS_OK, STATUS_QP_FAILED, Log
@@ -177,14 +178,8 @@ def shapes_of(configs: Sequence[ScenarioConfig]) -> Shapes:
         t_final=max((K + horizon + 2) * (c.hlip.t_ssp + c.hlip.t_dsp) for c in configs),
         t_step=max(_step_span(c) for c in configs),
         non_ideal=any(c.realism != RealismConfig() for c in configs),
-        terrain=_ground_of(configs))
-
-
-def _ground_of(configs: Sequence[ScenarioConfig]) -> str:
-    """The batch's ground kind (:attr:`Shapes.terrain`)."""
-    if any(c.realism.rough_height != 0.0 for c in configs):
-        return "rough"
-    return "step" if any(c.realism.step_height != 0.0 for c in configs) else "flat"
+        terrain=max((c.realism.ground_kind() for c in configs), key=GROUND_KINDS.index,
+                    default="flat"))
 
 
 def _step_span(c: ScenarioConfig) -> float:

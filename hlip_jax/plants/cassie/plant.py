@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from hlip_jax.config import GROUND_KINDS
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax.plants import Plant
 from hlip_jax.plants.base import StepCommand, StepResult, push_table
@@ -146,15 +147,17 @@ def make_params(cfg, n_push: int, t_step: float = 0.0, non_ideal: bool = False,
     that every chunk has one shape).  ``non_ideal``: the batch has a robot that departs from
     the ideal plant (``cfg.realism``), so every robot carries realism data; otherwise none
     does, and a scenario that departs is an error.  ``ground``: the batch's ground kind
-    (:data:`terrain.KINDS`; "step": every robot walks on the scene with the terrain block,
+    (:data:`hlip_jax.config.GROUND_KINDS`; "step": every robot walks on the scene with the terrain block,
     "rough": with the block and the height field)."""
     if not non_ideal and cfg.realism != type(cfg.realism)():
         raise ValueError(f"realism: scenario {cfg.name!r} departs from the ideal plant; build "
                          "it with non_ideal=True (rollout.shapes_of sets it for the batch)")
-    for f, kinds in (("step_height", ("step", "rough")), ("rough_height", ("rough",))):
-        if ground not in kinds and getattr(cfg.realism, f) != 0.0:
-            raise ValueError(f"realism.{f}: scenario {cfg.name!r} has uneven ground; build it "
-                             f"with ground in {kinds} (rollout.shapes_of sets it)")
+    need = cfg.realism.ground_kind()
+    if GROUND_KINDS.index(need) > GROUND_KINDS.index(ground):
+        f = "rough_height" if need == "rough" else "step_height"
+        raise ValueError(f"realism.{f}: scenario {cfg.name!r} has uneven ground; build it "
+                         f"with ground in {GROUND_KINDS[GROUND_KINDS.index(need):]} "
+                         "(rollout.shapes_of sets it)")
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
     ticks = np.zeros(tick_budget(max(t_step, step_span(cfg))))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,
