@@ -17,8 +17,8 @@ from __future__ import annotations
 PRESETS: dict[str, dict[str, object]] = {
     "paper": {
         "hlip.z0": 0.864,
-        "hlip.t_ssp": 0.2,
-        "hlip.t_dsp": 0.0532,
+        "hlip.t_ssp": 0.175,
+        "hlip.t_dsp": 0.03,
         "mpc.step_width_min": 0.1296,
         "gain.type": "lqr",
         "gain.with_position": True,
