@@ -367,7 +367,7 @@ def _forward_speeds(walk):
     """(robot, H-LIP-predicted) mean forward speed [m/s] of the 0.5 m/s robot over steps
     6..n.  The prediction is closed form: the stepping law u = u_H + K (x − x_H) from the
     robot's measured SSP⁻_0 state, stepped by the S2S model x_{k+1} = A x_k + B u_k (sagittal
-    plane), over n − 4 H-LIP periods."""
+    plane), over n − 6 H-LIP periods."""
     log, n, k = walk.log, walk.n, walk.k
     A, Bm = (np.asarray(a) for a in hlip.s2s_matrices(walk.z0, walk.ts, walk.td))
     x = log.x_robot[1, 0, 0].copy()
