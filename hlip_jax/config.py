@@ -50,10 +50,11 @@ class MPCConfig:
     step_width_min: float = spec(0.1, 0.0, 1.0, "minimum |step width| (leg clearance)", "m")
     step_width_max: float = spec(0.5, 0.0, 2.0, "maximum |step width|", "m")
     obstacle_weight: float = spec(1e3, 0.0, 1e9, "exact-penalty weight on obstacle slack", "1/m")
-    mode: str = spec("tube", doc="plan from the H-LIP's own state (tube) or the robot's (measured: "
-                     "on Cassie it feeds the S2S residual back into the plan and every robot falls "
-                     "within a few steps, docs/cassie_gait.md round 9)",
-                     choices=("tube", "measured"))
+    mode: str = spec("tube", doc="what each step's plan starts from: the H-LIP's own state (tube); "
+                     "the robot's COM position c with the H-LIP's p and v (position); the robot's "
+                     "whole state (measured: on Cassie it feeds the S2S residual back into the "
+                     "plan and every robot falls within a few steps, docs/cassie_gait.md round 9)",
+                     choices=("tube", "measured", "position"))
     robust: bool = spec(False, doc="tube MPC: tighten step limits by K E and keep-out discs by E, "
                         "E = mRPI(A + B K, W) of the W box below (hlip_jax.robust)",
                         choices=(True, False))

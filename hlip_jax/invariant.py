@@ -143,6 +143,31 @@ def to_heading(v, heading):
     return steplog.to_heading_frame(_f64(v), _f64(heading))
 
 
+def closed_loop(A, B, K, anchor=None):
+    """The error system e_{k+1} = A_cl e_k + w_k + β B δu_k of a loop whose nominal restarts
+    the coordinates ``anchor`` from the robot's state before every plan (the log's ``anchor``;
+    δu the foot-placement error, :func:`placement_errors`).
+
+    With M = diag(anchor) on the state the analysis uses ([c, p, v] or [p, v]), the nominal
+    steps from x̃_H = x_H + M e with u_H, and the robot with u_R = u_H + K e + δu, so
+    e⁺ = (A (I − M) + B K) e + w + B δu (tube: M = 0, A_cl = A + B K).  When the whole state
+    is anchored ("measured") the nominal also takes the robot's executed step u_R: e⁺ = w,
+    A_cl = 0, β = 0.
+
+    Args:
+      A (n, n) or per plane (2, n, n), B (n,) or (2, n): S2S matrices; K (n,) or (2, n).
+      anchor: (n,) 0/1, or None for the tube.
+    Returns (A_cl (2, n, n), β)."""
+    Ap, Bp = _plane_mats(A, B)
+    Ap, Bp = np.asarray(Ap, np.float64), np.asarray(Bp, np.float64)
+    n = Ap.shape[-1]
+    Kp = np.broadcast_to(_f64(K), (2, n))
+    m = np.zeros(n) if anchor is None else _f64(anchor).reshape(n)
+    if np.all(m == 1.0):
+        return np.zeros((2, n, n)), 0.0
+    return Ap * (1.0 - m)[None, None, :] + Bp[:, :, None] * Kp[:, None, :], 1.0
+
+
 def heading_frame(e, d, heading, A_cl):
     """Errors and error-system disturbances of a log, rotated from the world planes (x, y) into
     the path's heading frame (sagittal along θ_k, lateral to its left).
@@ -294,7 +319,7 @@ def _joint(E_pair, e, mask, tol):
 def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
             quantile: float = 0.99, transient: int = 0, holdout_fraction: float = 0.0,
             seed: int = 0, eps: float = 1e-5, directions=None, tol: float = 1e-9,
-            min_halfwidth=None, u_hlip=None, heading=None) -> Analysis:
+            min_halfwidth=None, u_hlip=None, heading=None, anchor=None) -> Analysis:
     """Per-plane W / E / coverage of a whole log.
 
     Args:
@@ -302,7 +327,9 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
         (see :func:`disturbances`); e (..., n_steps, 2, 3): errors x_robot − x_HLIP, counted
         with the same mask as the states (:func:`step_mask`).
       A, B: S2S matrices, shared or per plane; their size selects [c, p, v] or [p, v].
-      K: stepping gain (n,) or per plane (2, n); A_cl = A + B K.
+      K: stepping gain (n,) or per plane (2, n); A_cl = A + B K in the tube.
+      anchor: (n,) coordinates the nominal restarts from the robot's before every plan (the
+        log's ``anchor`` on the analysed state), or None (the tube): :func:`closed_loop`.
       u_hlip: (..., n_steps, 2) H-LIP steps, or None.  Given, W bounds the error system's
         disturbance d = w + B δu (:func:`placement_errors`), which the errors obey exactly
         (e⁺ = A_cl e + d); None bounds the robot's S2S disturbance w alone.
@@ -329,13 +356,13 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
     Kp = np.broadcast_to(_f64(K), (2, n)) if _f64(K).shape in ((n,), (2, n)) else None
     if Kp is None:
         raise ValueError(f"K: shape ({n},) or (2, {n}) expected, got {np.shape(K)}")
-    Acl = Ap + Bp[:, :, None] * Kp[:, None, :]
+    Acl, beta = closed_loop(Ap, Bp, Kp, anchor)
 
     d = disturbances(x, u_exec, valid, Ap, Bp, transient)
     w, wmask = np.asarray(d.w, np.float64), np.asarray(d.mask)
     if u_hlip is not None:
         du = placement_errors(u_exec, u_hlip, e, Kp)                  # (..., n_steps, 2)
-        w = w + Bp * du[..., :-1, :, None]
+        w = w + beta * Bp * du[..., :-1, :, None]
     es = _states(e, n)
     if heading is not None:
         es, w = heading_frame(es, w, heading, Acl)

@@ -85,17 +85,32 @@ def _seg_dist(P: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 def error_model(log: dict, s: int):
-    """(A, B, K, state slice) of the error dynamics e⁺ = (A + BK) e + w of scenario ``s``.
+    """(A, B, K, state slice) of the error dynamics of scenario ``s`` (e⁺ = (A + BK) e + w in
+    the tube; :func:`closed_loop` for every mode).
 
-    A gain that acts on the global position c (non-zero c entry) closes the loop on the full
-    [c, p, v] state; a gain on [p, v] only leaves c integrating (eigenvalue 1: no bounded
-    invariant set in c), so the analysis then uses the 2-state [p, v] system."""
+    A gain that acts on the global position c (non-zero c entry), or a nominal whose c restarts
+    from the robot's every step (the log's ``anchor``), bounds the error in c: the analysis
+    uses the full [c, p, v] state.  A tube gain on [p, v] only leaves c integrating
+    (eigenvalue 1: no bounded invariant set in c), so the analysis then uses the 2-state
+    [p, v] system."""
     A = np.asarray(log["A"][s], np.float64)
     B = np.asarray(log["B"][s], np.float64)
     K = np.asarray(log["K_gain"][s], np.float64)
-    if K.shape[-1] == 3 and np.any(K[:, 0] != 0.0):
+    if K.shape[-1] == 3 and (np.any(K[:, 0] != 0.0) or _anchor(log, s)[0] == 1.0):
         return A, B, K, slice(0, 3)
     return A[1:, 1:], B[1:], K[:, -2:], slice(1, 3)
+
+
+def _anchor(log: dict, s: int) -> np.ndarray:
+    return np.asarray(log["anchor"][s], np.float64)
+
+
+def closed_loop(log: dict, s: int):
+    """(A_cl (2, n, n), β) of scenario ``s``'s error system e⁺ = A_cl e + w + β B δu on the
+    state :func:`error_model` picks (:func:`hlip_jax.invariant.closed_loop`)."""
+    from hlip_jax import invariant as inv
+    A, B, K, sl = error_model(log, s)
+    return inv.closed_loop(A, B, K, _anchor(log, s)[sl])
 
 
 #: W boxes narrower than this half-width in an axis are widened to it [m or m/s]: a state the
@@ -123,21 +138,22 @@ def analysis_frame(log: dict, s: int) -> str:
 def error_samples(log: dict, s: int, mask: np.ndarray, du: np.ndarray):
     """(A, B, K, e, w, wmask) of scenario ``s`` in its analysis frame and state
     (:func:`analysis_frame`, :func:`error_model`): errors e (K, 2, n), error-system
-    disturbances w (K−1, 2, n) with e_{k+1} = (A + BK) e_k + w_k, and the mask of counted w
-    (both ends in ``mask``); ``du`` (K, 2): the foot-placement errors (:func:`_placement`)."""
+    disturbances w (K−1, 2, n) with e_{k+1} = A_cl e_k + w_k (:func:`closed_loop`), and the
+    mask of counted w (both ends in ``mask``); ``du`` (K, 2): the foot-placement errors
+    (:func:`_placement`)."""
     from hlip_jax import invariant as inv
     A, B, Kg, sl = error_model(log, s)
+    Acl, beta = closed_loop(log, s)
     x = np.asarray(log["x_robot"][s], np.float64)[:, :, sl]     # (K, 2, n)
     u = np.asarray(log["u_robot"][s], np.float64)
     e = np.asarray(log["e"][s], np.float64)[:, :, sl]
     # the error system's disturbance d = w + B δu: w from the robot's own S2S data (same
     # definition as the log's w), δu its foot-placement error
     w = steplog.s2s_residual(A, B, x, u)
-    w = w + B[None, None, :] * du[:-1, :, None]
+    w = w + beta * B[None, None, :] * du[:-1, :, None]
     if analysis_frame(log, s) == "heading":
-        Acl0 = A + np.outer(B, Kg[0])
         e, w = inv.heading_frame(np.where(mask[:, None, None], e, 0.0), w,
-                                 np.asarray(log["ref_heading"][s], np.float64), Acl0)
+                                 np.asarray(log["ref_heading"][s], np.float64), Acl[0])
     return A, B, Kg, e, w, mask[1:] & mask[:-1]
 
 
@@ -147,6 +163,7 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> di
     from hlip_jax import invariant as inv
     out = {}
     A, B, Kg, e, w, wmask = error_samples(log, s, mask, du)
+    acl = closed_loop(log, s)[0]
     nK = int(mask.sum())
     half = nK // 2
     for p, plane in enumerate("xy"):
@@ -154,7 +171,7 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> di
                 f"e_size_{plane}"]
         for k in keys:
             out[k] = math.nan
-        Acl = A + np.outer(B, Kg[p])
+        Acl = acl[p]
         if wmask.sum() < 1 or not inv.schur_stable(Acl):
             continue
         try:

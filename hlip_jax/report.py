@@ -162,8 +162,10 @@ def fig_steps(log, path: Path, title: str) -> None:
 
 
 def _plane_mats(log, s):
+    """What runs must share to pool their errors: the error model's A, B, K and the
+    closed-loop matrix (which the planner's ``mpc.mode`` changes)."""
     A, B, K, _ = metrics.error_model(log, s)
-    return A, B, K
+    return A, B, K, metrics.closed_loop(log, s)[0]
 
 
 def invariant_analysis(log, members: list[int]):
@@ -171,7 +173,7 @@ def invariant_analysis(log, members: list[int]):
     A, B, K; [c, p, v] or [p, v] as :func:`hlip_jax.metrics.error_model` decides): W box,
     held-out half when there are ≥ 2 runs."""
     from hlip_jax import invariant as inv
-    A, B, K = _plane_mats(log, members[0])
+    A, B, K, sl = metrics.error_model(log, members[0])
     sel = np.asarray(members)
     valid = steplog.alive(log["valid"][sel])
     hold = 0.5 if len(members) >= 2 else 0.0
@@ -180,7 +182,7 @@ def invariant_analysis(log, members: list[int]):
     return inv.analyse(log["x_robot"][sel], log["u_robot"][sel], valid, log["e"][sel],
                        A, B, K, W_estimator="box", holdout_fraction=hold, seed=0,
                        min_halfwidth=metrics.W_MIN_HALFWIDTH, u_hlip=log["u_hlip"][sel],
-                       heading=heading)
+                       heading=heading, anchor=np.asarray(log["anchor"][members[0]])[sl])
 
 
 def fig_invariant(an, log, members, path: Path, title: str) -> None:
@@ -586,9 +588,10 @@ def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
     doc.img(f"figures/{slug}_steps.png", f"{pname} step sizes")
 
     # runs of this path with the representative's S2S model and gain
-    A0, B0, K0 = _plane_mats(log, pos[idx])
+    mats0 = _plane_mats(log, pos[idx])
     same = [pos[i] for i in member_ids
-            if all(np.allclose(x, y) for x, y in zip(_plane_mats(log, pos[i]), (A0, B0, K0)))
+            if all(x.shape == y.shape and np.allclose(x, y)
+                   for x, y in zip(_plane_mats(log, pos[i]), mats0))
             and bool(np.asarray(log["valid"][pos[i]]).any())]
     doc.h(3, "Error invariant sets and coverage")
     try:

@@ -5,13 +5,16 @@ Timeline of step k (t_k = k T, T = T_SSP + T_DSP of the planner's H-LIP):
 
 1. at SSP⁻_k the H-LIP is at x_H,k and places u_H,k; the robot is at x_R,k and places u_R,k;
 2. the H-LIP's next pre-impact state is known: x_H,k+1 = A x_H,k + B u_H,k  (``mode="tube"``;
-   with ``mode="measured"`` the nominal is re-anchored on the robot: x_H,k+1 = A x_R,k + B u_R,k);
+   with ``mode="position"`` the nominal's c first restarts from the robot's c_R,k; with
+   ``mode="measured"`` the whole nominal is re-anchored on the robot: x_H,k+1 = A x_R,k + B u_R,k);
 3. the MPC plans u_H,k+1 … u_H,k+N from x_H,k+1 with the path preview at t_{k+1} + jT
    (warm-started from the previous plan, obstacles re-linearised there);
 4. the plant walks SSP⁻_k → SSP⁻_{k+1} and chooses u_R,k+1 = u_H,k+1 + K (x_R,k+1 − x_H,k+1).
 
 So e_k = x_R,k − x_H,k obeys e_{k+1} = (A + BK) e_k + w_k with w_k = x_R,k+1 − A x_R,k − B u_R,k
-(the robot's S2S residual against the H-LIP).  Before the loop the MPC plans u_H,0 from x_H,0.
+(the robot's S2S residual against the H-LIP) in the tube; the anchored modes change the
+closed-loop matrix (:func:`hlip_jax.invariant.closed_loop`).  Before the loop the MPC plans
+u_H,0 from x_H,0.
 The log's ``t`` is the planner's t_k; ``t_plant`` is the plant's own clock at SSP⁻_k (a Cassie
 step ends at its detected touchdown, so its steps need not last T).
 
@@ -39,6 +42,11 @@ from hlip_jax.steplog import STATUS_FELL, STATUS_NONFINITE, STATUS_OK, STATUS_QP
 
 STANCE_LEFT, STANCE_RIGHT = 0, 1
 
+#: mpc.mode -> which of the nominal's [c, p, v] restart from the robot's state before every plan
+#: (the log's ``anchor``; the error system it gives: :func:`hlip_jax.invariant.closed_loop`)
+ANCHOR = {"tube": np.zeros(3, np.float32), "measured": np.ones(3, np.float32),
+          "position": np.array([1.0, 0.0, 0.0], np.float32)}
+
 
 class Scenario(NamedTuple):
     """Batched per-scenario data (leading axis = scenarios)."""
@@ -50,7 +58,7 @@ class Scenario(NamedTuple):
     t_dsp: jax.Array
     x0: jax.Array         # (2, 3) initial state (robot and H-LIP)
     n_steps: jax.Array    # steps to simulate (≤ the static K)
-    tube: jax.Array       # bool: plan from the H-LIP's own state
+    anchor: jax.Array     # (3,) 1 where the nominal [c, p, v] restarts from the robot's each step
     plant: object         # the plant's params pytree
     key: jax.Array
 
@@ -232,7 +240,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
                                                  shapes.terrain)
         rows.append(Scenario(mpc=mp, path=path, gain=stepping_gain(c), z0=c.hlip.z0,
                              t_ssp=c.hlip.t_ssp, t_dsp=c.hlip.t_dsp, x0=x0,
-                             n_steps=np.int32(n_steps_of(c)), tube=np.bool_(m.mode == "tube"),
+                             n_steps=np.int32(n_steps_of(c)), anchor=ANCHOR[m.mode],
                              plant=plant, key=np.asarray(jax.random.key_data(jax.random.PRNGKey(c.seed)))))
     batch = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *rows)
 
@@ -359,8 +367,7 @@ def _step(scn: Scenario, static: Static, carry: Carry, k):
     stance_k = (STANCE_RIGHT + k) % 2
     active = carry.alive & (k < scn.n_steps)
     # 2. the nominal's next pre-impact state
-    x_h_next = jnp.where(scn.tube, (carry.x_h @ A.T) + carry.u_h[:, None] * B,
-                         (carry.x_r @ A.T) + carry.u_r[:, None] * B)
+    x_h_next = _nominal_next(scn, carry)
     # 3. plan from it
     new_plan, ok = _plan(scn, static, x_h_next, t_k + T, 1 - stance_k, carry.plan, k + 1)
     u_h_next = new_plan.u[0]
@@ -400,6 +407,15 @@ def _step(scn: Scenario, static: Static, carry: Carry, k):
                 qp_ok=carry.qp_ok & (ok | ~active),
                 t_plant=sel(carry.t_plant + jnp.asarray(res.duration, dt), carry.t_plant))
     return nxt, out
+
+
+def _nominal_next(scn: Scenario, carry: Carry):
+    """x_H,k+1 = A x̃_k + B ũ_k: x̃ is the nominal with the anchored coordinates replaced by the
+    robot's (:data:`ANCHOR`: none for "tube", c for "position", all for "measured"); ũ is
+    the robot's executed step u_R,k when the whole state is anchored, else u_H,k."""
+    x0 = carry.x_h + scn.anchor.astype(carry.x_h.dtype) * (carry.x_r - carry.x_h)
+    u0 = jnp.where(jnp.all(scn.anchor == 1), carry.u_r, carry.u_h)
+    return (x0 @ scn.mpc.A.T) + u0[:, None] * scn.mpc.B
 
 
 def simulate_one(scn: Scenario, static: Static):
@@ -540,4 +556,4 @@ def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to
     valid_w = valid & np.concatenate([valid[:, 1:], np.zeros((S, 1), bool)], axis=1)  # k, k+1
     out["w"] = np.where(valid_w[..., None, None], out["w"], np.nan)
     return Log(A=np.asarray(host.mpc.A)[:S], B=np.asarray(host.mpc.B)[:S],
-               K_gain=np.asarray(host.gain)[:S], **out)
+               K_gain=np.asarray(host.gain)[:S], anchor=np.asarray(host.anchor)[:S], **out)

@@ -41,6 +41,9 @@ and in :class:`Log` and nowhere else:
     A: the planner's 3-state S2S matrix per scenario (S, 3, 3)
     B: the planner's S2S input vector (S, 3)
     K_gain: the stepping gain per plane on [c, p, v] (S, 2, 3)
+    anchor: 1 for each coordinate of [c, p, v] that the nominal restarts from the robot's
+      state before every plan (``mpc.mode``: "tube" none, "position" c, "measured" all, and
+      then with the robot's executed step too; :func:`hlip_jax.invariant.closed_loop`) (S, 3)
 """
 
 from __future__ import annotations
@@ -82,6 +85,7 @@ class Log(NamedTuple):
     A: np.ndarray
     B: np.ndarray
     K_gain: np.ndarray
+    anchor: np.ndarray
 
 
 #: every field, in order

@@ -57,7 +57,7 @@ import numpy as np
 
 from hlip_jax import steplog
 from hlip_jax.metrics import (SUMMARY_METRICS, W_MIN_HALFWIDTH, active_pushes,  # noqa: F401
-                              analysis_frame, error_model, error_samples, first_push,
+                              analysis_frame, closed_loop, error_model, error_samples, first_push,
                               placement, push_recovery, scenario_metrics)
 from hlip_jax import sweep as sweep_mod
 
@@ -216,11 +216,24 @@ def _corrupt_text(err: BaseException) -> str:
     return f"corrupt or unreadable chunk ({type(err).__name__}: {err})"
 
 
+#: log fields added after results directories were first written → the value an older chunk
+#: stands for (``anchor``: every run before it planned as the tube does), given the chunk
+LATER_FIELDS = {"anchor": lambda z: np.zeros((z["index"].shape[0], 3))}
+
+
+def _with_later_fields(z: dict) -> dict:
+    for k, fill in LATER_FIELDS.items():
+        if k not in z and "index" in z:
+            z[k] = fill(z)
+    return z
+
+
 def load_chunk(path) -> dict[str, np.ndarray]:
-    """Every array of a chunk file, read in full; StoreError naming the file if it is
-    unreadable, truncated or fails a CRC check."""
+    """Every array of a chunk file, read in full (a field of :data:`LATER_FIELDS` that an older
+    chunk lacks is filled in); StoreError naming the file if it is unreadable, truncated or
+    fails a CRC check."""
     try:
-        return _read_npz(path)
+        return _with_later_fields(_read_npz(path))
     except _CORRUPT as err:
         raise StoreError(f"{path}: {_corrupt_text(err)}; "
                          f"`hlip-sweep run SWEEP --out DIR --resume` simulates it again") from None
@@ -238,7 +251,7 @@ def chunk_problem(path, start: int, stop: int) -> str | None:
         z = _read_npz(path)
     except _CORRUPT as err:
         return _corrupt_text(err)
-    missing = [k for k in (*LOG_FIELDS, "index") if k not in z]
+    missing = [k for k in (*LOG_FIELDS, "index") if k not in z and k not in LATER_FIELDS]
     if missing:
         return f"lacks the array(s) {', '.join(missing)}"
     n = stop - start
@@ -451,9 +464,9 @@ def _run_samples(z: dict, j: int, cfg):
         ec = steplog.to_heading_frame(ec, np.asarray(z["ref_heading"][j], np.float64))
     t = np.asarray(z["t_plant"][j], np.float64)
     dpush, epush = _push_masks(np.where(mask, t, np.inf), cfg)
-    Acl = np.stack([A + np.outer(B, Kg[p]) for p in range(2)])
+    Acl = closed_loop(z, j)[0]
     key = (cfg.swept.get("path", ""), cfg.plant, frame,
-           np.round(np.concatenate([A.ravel(), B.ravel(), Kg.ravel()]), 12).tobytes())
+           np.round(np.concatenate([A.ravel(), B.ravel(), Kg.ravel(), Acl.ravel()]), 12).tobytes())
     fell = bool(np.asarray(z["fail_step"][j]) >= 0)
     return key, Acl, frame, cov.RunSamples(e, mask, epush & mask, w, wmask, dpush & wmask, ec,
                                            fell)

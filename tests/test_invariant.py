@@ -528,3 +528,24 @@ def test_membership_of_traced_sets_and_host_points():
     assert np.asarray(jax.jit(lambda z: z.contains(P))(z)).tolist() == want
     assert np.asarray(z.contains(P)).tolist() == want
     assert np.asarray(z.contains(P.tolist())).tolist() == want
+
+
+def test_closed_loop_per_anchor():
+    """:func:`inv.closed_loop` in closed form on the paper's example H-LIP (z0 0.75 m, T_S 0.35 s,
+    T_D 0.05 s) with its 3-state deadbeat gain: the tube's A + BK (nilpotent: (A + BK)³ = 0);
+    anchoring c zeroes A's c column (c no longer integrates: the c column of A_cl is B K_c);
+    anchoring everything ("measured") leaves e⁺ = w (A_cl = 0, no placement term).  Exact up
+    to float64 rounding (1e-12 on O(10) entries)."""
+    from hlip_jax import hlip
+    A, B = (np.asarray(m, np.float64) for m in hlip.s2s_matrices(0.75, 0.35, 0.05, 9.81))
+    K = np.asarray(hlip.deadbeat_gain(0.75, 0.35, 0.05, 9.81, with_position=True), np.float64)
+    tube, beta = inv.closed_loop(A, B, K)
+    np.testing.assert_allclose(tube[0], A + np.outer(B, K), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.matrix_power(tube[1], 3), 0, atol=1e-6)
+    assert beta == 1.0
+    pos, beta = inv.closed_loop(A, B, K, [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(pos[0][:, 0], B * K[0], atol=1e-12)
+    np.testing.assert_allclose(pos[0][:, 1:], tube[0][:, 1:], atol=1e-12)
+    assert beta == 1.0
+    meas, beta = inv.closed_loop(A, B, K, [1.0, 1.0, 1.0])
+    assert not meas.any() and beta == 0.0

@@ -39,6 +39,12 @@ def _cases():
         path=PathConfig(shape="circle", params=dict(peak_speed=0.5)), duration=40.0,
         disturbance=DisturbanceConfig(noise_p=0.005, noise_v=0.02),
         mpc=ScenarioConfig().mpc.__class__(mode="measured"))
+    for mode in ("position", "tube"):
+        cases[f"slow-{mode}"] = ScenarioConfig(
+            path=PathConfig(shape="circle", params=dict(peak_speed=0.5)), duration=40.0,
+            gain=ScenarioConfig().gain.__class__(type="lqr", q_c=0.05, q_v=0.25, r=4.0),
+            disturbance=DisturbanceConfig(noise_p=0.005, noise_v=0.02),
+            mpc=ScenarioConfig().mpc.__class__(mode=mode))
     cases["lqr"] = ScenarioConfig(
         path=PathConfig(shape="circle", params=dict(peak_speed=0.5)), duration=40.0,
         gain=ScenarioConfig().gain.__class__(type="lqr", q_p=10.0, q_v=1.0, r=1.0),
@@ -82,7 +88,7 @@ def test_step_limits_never_violated(run):
     names, cases, log = run
     tol = 2e-3
     for i, n in enumerate(names):
-        if n in ("fall", "push", "measured", "lqr"):
+        if n in ("fall", "push", "measured", "slow-position", "slow-tube", "lqr"):
             continue
         m = cases[n].mpc
         v = log.valid[i]
@@ -183,6 +189,45 @@ def test_measured_mode_runs(run):
     i = _idx(run, "measured")
     assert log.status[i] == steplog.STATUS_OK
     assert _path_error(log, i).mean() <= 0.10
+
+
+@pytest.mark.parametrize("name", ["lqr", "slow-tube", "slow-position", "measured"])
+def test_error_recursion_per_mode(run, name):
+    """The logged errors obey the error system :func:`hlip_jax.invariant.closed_loop` gives for
+    the run's ``mpc.mode`` (the log's ``anchor``): e_{k+1} = A_cl e_k + w_k on the H-LIP plant
+    (no placement error), with A_cl = A + BK (tube), A (I − e_c e_cᵀ) + BK (position) and 0
+    (measured: e⁺ = w).  Tolerance 1e-9: float64 rounding of O(1) states; a wrong A_cl misses
+    by the size of e (≥ 1e-3 here)."""
+    from hlip_jax import invariant as inv
+    _, _, log = run
+    i = _idx(run, name)
+    assert log.status[i] == steplog.STATUS_OK
+    Acl, beta = inv.closed_loop(log.A[i], log.B[i], log.K_gain[i], log.anchor[i])
+    v = log.valid[i]
+    ks = [k for k in range(5, v.size - 1) if v[k] and v[k + 1]]
+    assert len(ks) > 80
+    miss = 0.0
+    for k in ks:
+        for p in range(2):
+            rhs = Acl[p] @ log.e[i, k, p] + log.w[i, k, p]
+            np.testing.assert_allclose(log.e[i, k + 1, p], rhs, atol=1e-9)
+            wrong = (log.A[i] + np.outer(log.B[i], log.K_gain[i, p])) @ log.e[i, k, p]
+            miss = max(miss, float(np.abs(wrong + log.w[i, k, p] - log.e[i, k + 1, p]).max()))
+    if name in ("slow-position", "measured"):
+        assert miss > 1e-3        # the tube's A + BK would not describe this mode
+
+
+def test_position_mode_keeps_c_error_small(run):
+    """Planning from the robot's c: the position error is one step's worth (≤ 0.02 m: the
+    plant's noise is 0.005 m on c and p and 0.02 m/s on v per step) while the tube, with the
+    same gain's slow position mode (q_c 0.05), lets it drift further; both track the circle."""
+    _, _, log = run
+    i, j = _idx(run, "slow-position"), _idx(run, "slow-tube")
+    vi = log.valid[i]
+    assert np.abs(log.e[i, vi, :, 0]).max() <= 0.02
+    assert _path_error(log, i).mean() <= 0.10
+    assert np.abs(log.e[j, log.valid[j], :, 0]).max() > 0.02
+    assert _path_error(log, j).mean() <= 0.10
 
 
 def test_stepping_gain_per_plane():

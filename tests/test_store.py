@@ -275,6 +275,22 @@ def test_load_log_pads_and_selects(tmp_path):
     np.testing.assert_array_equal(sub["x_robot"][1], log["x_robot"][1])
 
 
+def test_chunk_written_before_the_anchor_field_still_loads(tmp_path):
+    """A chunk of an older results directory has no ``anchor`` array: it is still sound (no
+    re-simulation on --resume) and loads with the tube's anchor (zeros: every run before the
+    field existed planned that way), which keeps its analysis as it was."""
+    out = tmp_path / "r"
+    runner.run_sweep(_tiny(), out, batch=4, progress=False, simulate=fake_simulate)
+    f = store.chunk_files(out)[0]
+    z = dict(np.load(f))
+    del z["anchor"]
+    np.savez(f, **z)
+    assert store.chunk_problem(f, 0, 4) is None
+    store.check_chunks(out)
+    log = store.load_log(out)
+    assert log["anchor"].shape == (8, 3) and not log["anchor"].any()
+
+
 def test_atomic_write_leaves_old_file_on_failure(tmp_path, monkeypatch):
     p = tmp_path / "f.txt"
     store.write_atomic(p, "old")
