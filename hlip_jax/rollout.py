@@ -413,7 +413,7 @@ def _nominal_next(scn: Scenario, carry: Carry):
     """x_H,k+1 = A x̃_k + B ũ_k: x̃ is the nominal with the anchored coordinates replaced by the
     robot's (:data:`ANCHOR`: none for "tube", c for "position", all for "measured"); ũ is
     the robot's executed step u_R,k when the whole state is anchored, else u_H,k."""
-    x0 = carry.x_h + scn.anchor.astype(carry.x_h.dtype) * (carry.x_r - carry.x_h)
+    x0 = jnp.where(scn.anchor == 1, carry.x_r, carry.x_h)
     u0 = jnp.where(jnp.all(scn.anchor == 1), carry.u_r, carry.u_h)
     return (x0 @ scn.mpc.A.T) + u0[:, None] * scn.mpc.B
 
