@@ -316,6 +316,20 @@ def _joint(E_pair, e, mask, tol):
     return Coverage(float(ins_i.sum()) / cnt, float(ins_o.sum()) / cnt, cnt)
 
 
+def _checked_log(x_robot, e, holdout_fraction):
+    """(x_robot, e) as float64 after :func:`analyse`'s shape and range checks (ValueError
+    naming the argument)."""
+    x = _f64(x_robot)
+    if x.ndim < 4:
+        raise ValueError(f"x_robot: shape (n_scenarios, ..., n_steps, 2, 3) expected, got {x.shape}")
+    e = _f64(e)
+    if e.shape != x.shape:
+        raise ValueError(f"e: shape {x.shape} (same as x_robot) expected, got {e.shape}")
+    if not 0.0 <= holdout_fraction < 1.0:
+        raise ValueError(f"holdout_fraction: must be in [0, 1), got {holdout_fraction}")
+    return x, e
+
+
 def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
             quantile: float = 0.99, transient: int = 0, holdout_fraction: float = 0.0,
             seed: int = 0, eps: float = 1e-5, directions=None, tol: float = 1e-9,
@@ -342,14 +356,7 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
         heading frame's sagittal and lateral ones (:func:`heading_frame`; needs the same gain
         in both planes); None keeps the world's x and y.
     """
-    x = _f64(x_robot)
-    if x.ndim < 4:
-        raise ValueError(f"x_robot: shape (n_scenarios, ..., n_steps, 2, 3) expected, got {x.shape}")
-    e = _f64(e)
-    if e.shape != x.shape:
-        raise ValueError(f"e: shape {x.shape} (same as x_robot) expected, got {e.shape}")
-    if not 0.0 <= holdout_fraction < 1.0:
-        raise ValueError(f"holdout_fraction: must be in [0, 1), got {holdout_fraction}")
+    x, e = _checked_log(x_robot, e, holdout_fraction)
     Ap, Bp = _plane_mats(A, B)
     Ap, Bp = np.asarray(Ap, np.float64), np.asarray(Bp, np.float64)
     n = Ap.shape[-1]
