@@ -271,3 +271,22 @@ def test_progress_news_from_inside_the_loop():
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12, equal_nan=True, err_msg=f)
         else:
             np.testing.assert_array_equal(a, b, err_msg=f)
+
+
+@pytest.mark.parametrize("name", ["slow-position", "measured"])
+def test_summary_coverage_uses_the_modes_error_system(run, name):
+    """The summary's metrics follow the mode's error system (:func:`metrics.closed_loop`):
+    in-sample coverage is 1 (W and E from the disturbances the errors obey), the analysis
+    keeps c, and E is far smaller than the same log read as a tube run (anchor zeroed), whose
+    A + BK sums the disturbances over the slow position mode (|eig| 0.9+) or adds them up for
+    the measured mode's one-step errors: at least 3× in volume."""
+    from hlip_jax import metrics
+    _, _, log = run
+    i = _idx(run, name)
+    d = log._asdict()
+    m = metrics.scenario_metrics(d, i)
+    assert m["cov_x_outer"] == 1.0 and m["cov_y_outer"] == 1.0
+    assert metrics.error_model(d, i)[3] == slice(0, 3)
+    as_tube = metrics.scenario_metrics(dict(d, anchor=np.zeros_like(d["anchor"])), i)
+    for plane in "xy":
+        assert as_tube[f"e_size_{plane}"] > 3 * m[f"e_size_{plane}"], (plane, as_tube, m)
