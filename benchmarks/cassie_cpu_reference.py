@@ -30,7 +30,7 @@ against ("C MuJoCo + OSQP per tick, one process per core").  One control tick (1
 3. **Outputs** (:func:`measure`, :func:`errors`) and **condensed dynamics** (:func:`condense`):
    numpy transcriptions of :func:`outputs.measure` and :func:`dynamics.condense`; M⁻¹ by
    ``mj_solveM`` on MuJoCo's factor instead of a dense Cholesky (same solve, round-off apart);
-   the pseudo-inverse of G by the same projection of the plantar four-bars' null vectors.
+   the pseudo-inverse of G by ``numpy.linalg.eigh`` with the same relative cut-off.
 4. **CLF-QP** (:func:`build`): P, q, A, l, u exactly as :func:`clfqp.build`, solved by OSQP
    (:class:`QPSolver`): one ``osqp.OSQP`` object per robot, set up once on a fixed sparsity
    pattern and updated every tick (``update(Px, q, Ax, l, u)``), warm-started from the previous
@@ -58,7 +58,6 @@ from typing import NamedTuple, Optional
 import mujoco
 import numpy as np
 import osqp
-import scipy.linalg
 import scipy.sparse as sp
 
 from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs
@@ -366,27 +365,13 @@ def constraint_stack(terms: Terms, contact, springs=None):
     return J, jd, active, H
 
 
-def plantar_normals(J: np.ndarray) -> np.ndarray:
-    """N (28, 2) of :func:`dynamics.plantar_normals`: per plantar four-bar the unit normal of
-    its plane, the largest cross product among its 3 connect rows' three largest columns."""
-    N = np.zeros((J.shape[0], 2))
-    for i, r in enumerate(dynamics.PLANTAR_ROWS):
-        cols = J[r:r + 3].T
-        c = cols[np.argsort(-np.sum(cols * cols, axis=1), kind="stable")[:3]]
-        x = np.stack([np.cross(c[0], c[1]), np.cross(c[0], c[2]), np.cross(c[1], c[2])])
-        n = x[np.argmax(np.sum(x * x, axis=1))]
-        N[r:r + 3, i] = n / np.linalg.norm(n)
-    return N
-
-
-def condense(terms: Terms, actuation, contact, springs, solve_M):
+def condense(terms: Terms, actuation, contact, springs, solve_M, reg: float = 1e-9):
     """Affine maps τ ↦ (q̈, λ) of the constrained dynamics, :func:`dynamics.condense`::
 
         G = J M⁻¹ Jᵀ + diag(1 − active),   λ = G⁺ (−J̇q̇ − J M⁻¹ (B τ − h + f_p)),
         q̈ = M⁻¹ (B τ − h + f_p) + M⁻¹ Jᵀ λ,
 
-    G⁺ r = (G + s N Nᵀ)⁻¹ (I − N Nᵀ) r with N the plantar four-bars' null vectors and
-    s = trace G / 28 (scipy's Cholesky); contact rows of λ
+    G⁺ the eigen pseudo-inverse (eigenvalues ≤ ``reg`` · max eig dropped); contact rows of λ
     returned as world forces Hᵢᵀλᵢ [N].  ``solve_M(Yᵀ)`` returns (M⁻¹ Y)ᵀ for Yᵀ (k, nv) (here
     ``mj_solveM`` on MuJoCo's factor).  Returns :class:`dynamics.Condensed` (numpy)."""
     J, jd, active, H = constraint_stack(terms, contact, springs)
@@ -398,9 +383,10 @@ def condense(terms: Terms, actuation, contact, springs, solve_M):
     G[np.diag_indices_from(G)] += 1.0 - active
     rhs_l = -(J @ Minv_rhs)
     rhs_l[:, -1] -= jd
-    N = plantar_normals(J)
-    Gs = 0.5 * (G + G.T) + np.trace(G) / G.shape[0] * (N @ N.T)
-    lam = scipy.linalg.cho_solve(scipy.linalg.cho_factor(Gs), rhs_l - N @ (N.T @ rhs_l))
+    s, U = np.linalg.eigh(0.5 * (G + G.T))
+    keep = s > reg * s.max()
+    s_inv = np.where(keep, 1.0 / np.where(keep, s, 1.0), 0.0)
+    lam = U @ (s_inv[:, None] * (U.T @ rhs_l))
     qdd = Minv_rhs + Minv_Jt @ lam
     c0, c1 = dynamics.N_LOOP_ROWS, dynamics.N_LOOP_ROWS + dynamics.N_CONTACT_ROWS
     lam[c0:c1] = (H.transpose(0, 2, 1) @ lam[c0:c1].reshape(4, 3, -1)).reshape(

@@ -117,7 +117,7 @@ def test_condensed_dynamics_satisfy_constraints_and_newton(cassie, terms_fn, con
     qdd = np.asarray(cond.qdd_tau @ tau + cond.qdd0)
     lam = np.asarray(cond.lam_tau @ tau + cond.lam0)
     J, jd, active, H = (np.asarray(a) for a in dynamics.constraint_stack(terms, jnp.array(contact, float), springs))
-    # constraints: J q̈ + J̇q̇ = 0 on every active row (float64; the minimum-norm solve drops the
+    # constraints: J q̈ + J̇q̇ = 0 on every active row (float64; the pseudo-inverse drops the
     # dependent out-of-plane plantar row, whose residual is round-off of ~1e-8 relative to q̈)
     assert np.max(np.abs(J @ qdd + jd)) < 1e-7 * np.abs(qdd).max()
     # Newton: M q̈ + h − f_p = Bτ + J_loopᵀλ_loop + Σ J_siteᵀ f_site + J_springᵀ λ_spring
@@ -137,76 +137,7 @@ def test_condensed_dynamics_satisfy_constraints_and_newton(cassie, terms_fn, con
     f = lam[12:24].reshape(4, 3)
     for i, c in enumerate(contact):
         if not c:
-            assert np.all(np.abs(f[i]) < 1e-9)  # round-off of the Cholesky solve only
-
-
-CONTACT_SETS = [(1, 1, 1, 1), (1, 1, 0, 0), (0, 0, 1, 1), (1, 0, 0, 0), (0, 0, 0, 0)]
-
-
-def _closed_state_terms(cassie, terms_fn, seed):
-    """Terms at the stand keyframe (chains closed) with random joint velocities (so J̇q̇ ≠ 0)."""
-    m = cassie.mj_model
-    d = mujoco.MjData(m)
-    mujoco.mj_resetDataKeyframe(m, d, cassie.index.stand_key)
-    d.qvel[:] = np.random.default_rng(seed).uniform(-0.5, 0.5, m.nv)
-    mujoco.mj_forward(m, d)
-    return terms_fn(mjx.put_data(m, d))
-
-
-@pytest.mark.parametrize("contact", CONTACT_SETS)
-def test_plantar_normals_span_the_null_space_of_G(cassie, terms_fn, contact):
-    """G is singular exactly along the two plantar four-bars' plane normals N: N orthonormal,
-    Jᵀ N = 0 and G N = 0, the two smallest eigenvalues of G (numpy) are ≤ 1e-12 of the largest and the
-    third is ≥ 1e-5 of it (so the null space is N's and nothing else).  Jᵀ N and G N are
-    held to 1e-8 of |J| and |G| (measured 2e-9: the keyframe closes the chains to ~1e-9 m)."""
-    terms = _closed_state_terms(cassie, terms_fn, 0)
-    ct = jnp.array(contact, float)
-    J, _, active, _ = (np.asarray(a) for a in dynamics.constraint_stack(terms, ct, dynamics.spring_dofs(cassie)))
-    N = np.asarray(dynamics.plantar_normals(jnp.asarray(J)))
-    np.testing.assert_allclose(N.T @ N, np.eye(2), atol=1e-12)
-    assert np.abs(J.T @ N).max() < 1e-8 * np.abs(J).max()
-    G = J @ np.linalg.solve(np.asarray(terms.M), J.T) + np.diag(1.0 - active)
-    assert np.abs(G @ N).max() < 1e-8 * np.abs(G).max()
-    s = np.linalg.eigvalsh(G)
-    assert abs(s[0]) < 1e-12 * s[-1] and abs(s[1]) < 1e-12 * s[-1] and s[2] > 1e-5 * s[-1]
-
-
-@pytest.mark.parametrize("contact", CONTACT_SETS)
-def test_constraint_forces_are_the_minimum_norm_solution(cassie, terms_fn, contact):
-    """λ of the condensation is G⁺ r: against numpy's SVD pseudo-inverse (cut-off 1e-10 of
-    the largest singular value) within 1e-7 of |λ| (measured ≤ 1e-8: the keyframe's closure
-    tilts the null vectors by that much, and the two routes drop slightly different lines)."""
-    terms = _closed_state_terms(cassie, terms_fn, 1)
-    ct = jnp.array(contact, float)
-    J, jd, active, _ = dynamics.constraint_stack(terms, ct, dynamics.spring_dofs(cassie))
-    Minv_Jt = np.linalg.solve(np.asarray(terms.M), np.asarray(J).T)
-    G = np.asarray(J) @ Minv_Jt + np.diag(1.0 - np.asarray(active))
-    r = np.random.default_rng(2).normal(size=(G.shape[0], 3)) * 100.0
-    r[:, 0] -= np.asarray(jd)
-    lam = np.asarray(dynamics.min_norm_forces(jnp.asarray(G), dynamics.plantar_normals(J), jnp.asarray(r)))
-    ref = np.linalg.pinv(G, rcond=1e-10) @ r
-    np.testing.assert_allclose(lam, ref, atol=1e-7 * np.abs(ref).max())
-
-
-@pytest.mark.parametrize("contact", CONTACT_SETS)
-def test_condensed_dynamics_in_float32_match_float64(cassie, terms_fn, contact):
-    """The float32 condensation (what the sweeps run) against float64 at the same state, for a
-    torque inside the motor limits: q̈ and λ within 1e-4 of their largest entries (measured
-    ≤ 3e-5; an eigen-decomposition cut at 1e-9 of the largest eigenvalue, the method before,
-    kept float32 round-off eigenvalues along N and was off by up to 3.5e-3 in q̈ with 5e4 N of
-    spurious plantar-rod force)."""
-    terms = _closed_state_terms(cassie, terms_fn, 2)
-    ct = jnp.array(contact, float)
-    springs = dynamics.spring_dofs(cassie)
-    f32 = jax.tree.map(lambda a: a.astype(jnp.float32) if jnp.issubdtype(a.dtype, jnp.floating) else a, terms)
-    c64 = dynamics.condense(terms, cassie.actuation, ct, springs)
-    c32 = dynamics.condense(f32, np.asarray(cassie.actuation, np.float32), ct.astype(jnp.float32), springs)
-    assert c32.qdd_tau.dtype == jnp.float32
-    tau = np.random.default_rng(1).uniform(-1, 1, cassie.index.nu) * cassie.ctrl_range[:, 1]
-    for a, b in (("qdd_tau", "qdd0"), ("lam_tau", "lam0")):
-        x64 = np.asarray(getattr(c64, a)) @ tau + np.asarray(getattr(c64, b))
-        x32 = np.asarray(getattr(c32, a), float) @ tau + np.asarray(getattr(c32, b), float)
-        np.testing.assert_allclose(x32, x64, atol=1e-4 * np.abs(x64).max(), err_msg=a)
+            assert np.all(np.abs(f[i]) < 1e-9)  # round-off of the eigen-decomposition only
 
 
 def test_contact_forces_match_mujoco_statics(cassie, terms_fn):
@@ -303,10 +234,9 @@ def test_compacted_batch_gives_the_same_torques(cassie, terms_fn):
 
 def test_rho_previous_starts_from_the_previous_ticks_step_size(cassie, terms_fn):
     # cassie.qp_rho_start = "previous": the second tick's ADMM starts from the first tick's
-    # final ρ (warm[2]).  Handed the default ρ instead, it is the default solve exactly.  Both
-    # starts end inside the solver's accuracy on this problem: at eps 1e-9 (float64) each
-    # ADMM iterate sits 2.3-2.6e-3 N m from OSQP's polished solution (held at 5e-3), and
-    # the two 2.5e-4 N m from each other (held at 1e-3; at eps 1e-7 they sit 1e-2 apart).
+    # final ρ (warm[2]).  Handed the default ρ instead, it is the default solve exactly; the
+    # torques of both starts agree to 1e-4 N m (float64 at eps 1e-9, as in the OSQP
+    # comparison above: at 1e-7 the iterates of this problem still sit 1e-2 N m apart).
     meas, des, cond, contact, lo, hi = _left_foot_problem(cassie, terms_fn, seed=9)
     s = clfqp.DEFAULT_SETTINGS._replace(eps_abs=1e-9, eps_rel=1e-9, max_iter=200000)
     g = control.STAND_GAINS
@@ -320,10 +250,7 @@ def test_rho_previous_starts_from_the_previous_ticks_step_size(cassie, terms_fn)
     np.testing.assert_array_equal(default.tau, same.tau)
     assert int(default.iterations) == int(same.iterations)
     assert int(prev.status) == qp.SOLVED and int(default.status) == qp.SOLVED
-    ref = _osqp_reference(clfqp.build(meas, des2, cond, contact, lo, hi, g)).x[:cassie.index.nu]
-    np.testing.assert_allclose(prev.tau, ref, atol=5e-3, rtol=0)
-    np.testing.assert_allclose(default.tau, ref, atol=5e-3, rtol=0)
-    np.testing.assert_allclose(prev.tau, default.tau, atol=1e-3, rtol=0)
+    np.testing.assert_allclose(prev.tau, default.tau, atol=1e-4, rtol=0)
 
 
 def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):

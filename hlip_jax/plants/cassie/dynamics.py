@@ -22,16 +22,9 @@ applies to the robot at that site [N]).  Eliminating λ:
 A site whose ``contact`` flag is 0 gets a zero Jacobian row and a unit diagonal in G, so its
 force is exactly 0 and it does not constrain q̈.  Two sites on one foot constrain only 5 of the
 foot's 6 dofs (their distance is fixed): the heel then keeps only its two rows normal to the
-foot axis (:func:`contact_frames`).  Each plantar four-bar is planar, so its three connect
-rows are dependent: the combination n·(rows) along the four-bar's plane normal n vanishes
-(:func:`plantar_normals`), G is singular along it, and its right side there is round-off and
-the J̇q̇ of a chain that the physics keeps only nearly closed.  λ is the minimum-norm solution,
-G⁺ times the right side: with N (28, 2) the two unit null vectors (n on each plantar loop's
-rows), G + s N Nᵀ (s = trace G / 28) is positive definite and acts on range(G) as G does, so
-
-    λ = (G + s N Nᵀ)⁻¹ (I − N Nᵀ) r = G⁺ r
-
-by one Cholesky factorisation (:func:`min_norm_forces`).  The result is the affine map
+foot axis (:func:`contact_frames`).  Each plantar four-bar is planar, so its connect rows
+are also dependent (the out-of-plane row); G is therefore inverted as a pseudo-inverse
+(eigenvalues below ``reg · max eig`` dropped), i.e. λ is the minimum-norm least-squares force.  The result is the affine map
 
     q̈ = Q_τ τ + q̈₀,   λ = L_τ τ + λ₀,
 
@@ -50,7 +43,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax import lax
 from jax.scipy.linalg import cho_factor, cho_solve
 
 from hlip_jax.plants.cassie import model
@@ -59,8 +51,6 @@ N_LOOP_ROWS = 12
 N_CONTACT_ROWS = 12
 N_SPRING_ROWS = 4
 N_CONSTRAINT_ROWS = N_LOOP_ROWS + N_CONTACT_ROWS + N_SPRING_ROWS
-#: first rows of the two plantar four-bars' connect constraints (left, right; model.LOOPS order)
-PLANTAR_ROWS = tuple(3 * i for i, name in enumerate(model.LOOPS) if "plantar" in name)
 
 
 def spring_dofs(cassie: model.Cassie) -> tuple:
@@ -129,36 +119,8 @@ def constraint_stack(terms: model.RobotTerms, contact: jax.Array, springs=None):
     return J, jd, active, H
 
 
-def plantar_normals(J: jax.Array) -> jax.Array:
-    """N (28, 2): the unit null vectors of G from the two planar plantar four-bars.
-
-    A planar four-bar's connect constraint (3 rows, :data:`PLANTAR_ROWS`) has rank 2: every
-    column of its block J_p lies in the four-bar's plane, and the plane normal n (nᵀ J_p = 0)
-    is the cross product of two of them.  Only the four-bar's own three joints (foot crank,
-    plantar rod, toe) give nonzero columns (every other dof moves both anchors alike), so n
-    is the largest cross product among the three columns of largest norm.  N holds n on each
-    plantar loop's rows; Jᵀ N = 0 and G N = 0 for the whole stack (to the chain's closure: a
-    chain held open by δ tilts n by O(δ))."""
-    N = jnp.zeros((J.shape[0], 2), J.dtype)
-    for i, r in enumerate(PLANTAR_ROWS):
-        cols = J[r:r + 3].T                                                      # (nv, 3)
-        c = cols[lax.top_k(jnp.sum(cols * cols, axis=1), 3)[1]]
-        x = jnp.stack([jnp.cross(c[0], c[1]), jnp.cross(c[0], c[2]), jnp.cross(c[1], c[2])])
-        n = x[jnp.argmax(jnp.sum(x * x, axis=1))]
-        N = N.at[r:r + 3, i].set(n / jnp.linalg.norm(n))
-    return N
-
-
-def min_norm_forces(G: jax.Array, N: jax.Array, r: jax.Array) -> jax.Array:
-    """λ = G⁺ r for symmetric positive semi-definite G whose null space is spanned by the
-    orthonormal columns of N (module doc): (G + s N Nᵀ)⁻¹ (I − N Nᵀ) r, s = trace(G) / rows,
-    one Cholesky factorisation.  r: (rows, k)."""
-    Gs = 0.5 * (G + G.T)
-    s = jnp.trace(Gs) / G.shape[0]
-    return cho_solve(cho_factor(Gs + s * (N @ N.T)), r - N @ (N.T @ r))
-
-
-def condense(terms: model.RobotTerms, actuation, contact, springs=None) -> Condensed:
+def condense(terms: model.RobotTerms, actuation, contact, springs=None,
+             reg: float = 1e-9) -> Condensed:
     """Affine maps τ ↦ (q̈, λ) of the constrained dynamics (module doc).
 
     Args:
@@ -167,6 +129,13 @@ def condense(terms: model.RobotTerms, actuation, contact, springs=None) -> Conde
       contact: (4,) contact flags of the sites (left toe, left heel, right toe, right heel).
       springs: None (compliant springs) or the 4 spring dof addresses (:func:`spring_dofs`)
         to lock them in the model.
+      reg: relative eigenvalue cut-off of the pseudo-inverse of G (1e-9 in float64; use ~1e-5
+        in float32).  The control tick uses the default in float32 too: G's two null
+        eigenvalues then come out as round-off (~1e-7 of the largest), pass the cut and are
+        inverted, which leaves q̈ off by up to ~10 % of float64's and λ with up to ~1e5 N of
+        spurious plantar-rod force at the standing keyframe.  The validated controller is this
+        one; a projection of the null vectors that fixes it walked fewer 200 N pushes on the
+        validation set (docs/cassie_gait.md, round 11).
     """
     M = terms.M
     B = jnp.asarray(actuation, M.dtype)
@@ -179,7 +148,12 @@ def condense(terms: model.RobotTerms, actuation, contact, springs=None) -> Conde
     G = G + jnp.diag(1.0 - active)                    # inactive rows: λ = 0
     rhs_l = -(J @ Minv_rhs)
     rhs_l = rhs_l.at[:, -1].add(-jd)
-    lam = min_norm_forces(G, plantar_normals(J), rhs_l)                         # (28, nu+1)
+    # pseudo-inverse of G: drops redundant rows (the out-of-plane row of each planar plantar
+    # four-bar, and any other dependent row) together with their inconsistent right sides
+    s, U = jnp.linalg.eigh(0.5 * (G + G.T))
+    tol = reg * jnp.max(s)
+    s_inv = jnp.where(s > tol, 1.0 / jnp.where(s > tol, s, 1.0), 0.0)
+    lam = U @ (s_inv[:, None] * (U.T @ rhs_l))                                   # (28, nu+1)
     qdd = Minv_rhs + Minv_Jt @ lam
     # contact rows → world forces at the sites (H[i]ᵀ λ_i)
     c0, c1 = N_LOOP_ROWS, N_LOOP_ROWS + N_CONTACT_ROWS
