@@ -36,6 +36,9 @@ def parse():
     p.add_argument("--eps", type=float, default=1e-4, help="eps_abs = eps_rel for both solvers")
     p.add_argument("--linsys", choices=("cholesky", "inverse"), default="inverse")
     p.add_argument("--modes", default="cold,warm")
+    p.add_argument("--shrink", type=int, default=None,
+                   help="tier shrink factor of the straggler compaction (qp.Settings.compaction_shrink; "
+                   "default: the solver's)")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--osqp-problems", type=int, default=300)
     p.add_argument("--seed", type=int, default=0)
@@ -96,6 +99,8 @@ def main():
     sizes = [tuple(int(v) for v in s.split("x")) for s in ARGS.sizes.split(",")]
     modes = ARGS.modes.split(",")
     settings = qp.Settings(eps_abs=ARGS.eps, eps_rel=ARGS.eps, linsys=ARGS.linsys)
+    if ARGS.shrink is not None:
+        settings = settings._replace(compaction_shrink=ARGS.shrink)
     rng = np.random.default_rng(ARGS.seed)
     dev = jax.devices()[0]
     rows = []

@@ -34,9 +34,9 @@ as every problem is done; without it they run in a loop of static trip count
 way: the extra blocks only touch problems that are already frozen.  In the Cassie tick on an H100
 the while loop is the faster one (the blocks it saves cost more than its predicate's trips to the
 host; BENCHMARKS.md).  A batch solved in one piece on an accelerator runs with *straggler
-compaction* (:func:`_compacted`): the problems still unfinished when an eighth of the batch
-is left continue in a batch of that size, so the work follows the distribution of iteration
-counts instead of the slowest problem.  Status codes are
+compaction* (:func:`_compacted`): the problems still unfinished when half the batch
+(1/``Settings.compaction_shrink``) is left continue in a batch of that size, and so on, so the
+work follows the distribution of iteration counts instead of the slowest problem.  Status codes are
 OSQP 1.x's.  dtype follows the inputs (float32 or float64); products run at highest precision.
 """
 
@@ -105,6 +105,8 @@ class Settings(NamedTuple):
       accurate for badly conditioned K).
     early_exit: stop the block loop when every problem is done (a while loop); False: always
       run ⌈max_iter / check_interval⌉ blocks (a loop of static trip count; same results).
+    compaction_shrink: with straggler compaction (``solve(compact=True)``), each tier holds
+      1/``compaction_shrink`` of the one before (:func:`compaction_tiers`; an integer ≥ 2).
     """
 
     eps_abs: float = 1e-3
@@ -122,6 +124,7 @@ class Settings(NamedTuple):
     check_interval: int = 25
     linsys: str = "cholesky"
     early_exit: bool = True
+    compaction_shrink: int = 2
 
 
 class Solution(NamedTuple):
@@ -179,6 +182,8 @@ def validate_settings(s: Settings) -> None:
         bad("linsys", "{'cholesky', 'inverse'}")
     if not isinstance(s.early_exit, bool):
         bad("early_exit", "{True, False}")
+    if not (isinstance(s.compaction_shrink, int) and s.compaction_shrink >= 2):
+        bad("compaction_shrink", "integers >= 2")
 
 
 # --- helpers -----------------------------------------------------------------------------------
@@ -537,7 +542,7 @@ def _solve_one(P, q, A, l, u, x0, y0, rho0, s: Settings, warm: bool):
     return _finish_one(d, _blocks(d, s, st), valid)
 
 
-def compaction_tiers(batch: int, shrink: int = 8, smallest: int = 256) -> Tuple[int, ...]:
+def compaction_tiers(batch: int, shrink: int = 2, smallest: int = 256) -> Tuple[int, ...]:
     """Batch sizes of the compacted loop: ``batch``, then ÷ ``shrink`` while at least
     ``smallest`` (a tier smaller than that costs about as much per block as the one above)."""
     tiers = [batch]
@@ -575,7 +580,7 @@ def _solve_compacted(args, s: Settings, warm: bool):
     """A batch on an accelerator: per-problem setup and unscaling vmapped, the ADMM blocks in
     the tiers of :func:`_compacted`."""
     d, st, valid = jax.vmap(lambda *a: _setup_one(*a, s, warm))(*args)
-    st = _compacted(d, s, st, compaction_tiers(args[1].shape[0]))
+    st = _compacted(d, s, st, compaction_tiers(args[1].shape[0], s.compaction_shrink))
     return jax.vmap(_finish_one)(d, st, valid)
 
 

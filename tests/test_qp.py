@@ -316,11 +316,18 @@ def test_fixed_trip_count_loop_gives_the_same_solutions(max_iter, check):
 
 
 def test_compaction_tiers():
-    # each tier an eighth of the one above, none below 256 problems
-    assert qp.compaction_tiers(65536) == (65536, 8192, 1024)
-    assert qp.compaction_tiers(2048) == (2048, 256)
-    assert qp.compaction_tiers(2047) == (2047,)
+    # by default each tier half the one above, none below 256 problems
+    assert qp.Settings().compaction_shrink == 2
+    assert qp.compaction_tiers(65536) == (65536, 32768, 16384, 8192, 4096, 2048, 1024, 512, 256)
+    assert qp.compaction_tiers(2047) == (2047, 1023, 511)
+    assert qp.compaction_tiers(511) == (511,)
     assert qp.compaction_tiers(1) == (1,)
+    # an eighth (Settings.compaction_shrink = 8)
+    assert qp.compaction_tiers(65536, 8) == (65536, 8192, 1024)
+    assert qp.compaction_tiers(2048, 8) == (2048, 256)
+    assert qp.compaction_tiers(2047, 8) == (2047,)
+    with pytest.raises(ValueError, match="compaction_shrink"):
+        qp.validate_settings(qp.Settings(compaction_shrink=1))
 
 
 @pytest.mark.parametrize("warm", [False, True])
