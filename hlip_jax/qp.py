@@ -36,8 +36,8 @@ the while loop is the faster one (the blocks it saves cost more than its predica
 host; BENCHMARKS.md).  A batch solved in one piece on an accelerator runs with *straggler
 compaction* (:func:`_compacted`): the problems still unfinished when half the batch
 (1/``Settings.compaction_shrink``) is left continue in a batch of that size, and so on, so the
-work follows the distribution of iteration counts instead of the slowest problem.  Status codes are
-OSQP 1.x's.  dtype follows the inputs (float32 or float64); products run at highest precision.
+work follows the distribution of iteration counts instead of the slowest problem.  Status
+codes are OSQP 1.x's.  dtype follows the inputs (float32 or float64); products run at highest precision.
 """
 
 from __future__ import annotations

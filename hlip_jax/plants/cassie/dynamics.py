@@ -132,7 +132,7 @@ def condense(terms: model.RobotTerms, actuation, contact, springs=None,
       reg: relative eigenvalue cut-off of the pseudo-inverse of G (1e-9 in float64; use ~1e-5
         in float32).  The control tick uses the default in float32 too: G's two null
         eigenvalues then come out as round-off (~1e-7 of the largest), pass the cut and are
-        inverted, which leaves q̈ off by up to ~10 % of float64's and λ with up to ~1e5 N of
+        inverted, which leaves q̈ off by up to 11 % of float64's and λ with up to 1.7e5 N of
         spurious plantar-rod force at the standing keyframe.  The validated controller is this
         one; a projection of the null vectors that fixes it walked fewer 200 N pushes on the
         validation set (docs/cassie_gait.md, round 11).
