@@ -260,6 +260,16 @@ def build_parser() -> argparse.ArgumentParser:
     fs.add_argument("--skip", type=int, default=4, metavar="K",
                     help="leave out the first K steps of every run (start from rest; >= 0)")
 
+    wb = sub.add_parser("wbox", help="the W box of a results directory, as sweep-file lines "
+                        "for the tube MPC", description="Read DIR/coverage.csv and print the "
+                        "[base.mpc] lines (w_frame, w_c_1 ... w_v_2) of the symmetric box that "
+                        "encloses the chosen groups' W, rounded up to 1e-4 (hlip_jax.robust).")
+    wb.add_argument("dir", metavar="DIR")
+    wb.add_argument("--method", default="box", metavar="METHOD",
+                    help="which W of coverage.csv: box, box_with_push or quantile (default box)")
+    wb.add_argument("--group", action="append", default=None, metavar="NAME",
+                    help="a group of coverage.csv (repeat for several; default: all groups)")
+
     sub.add_parser("list", help="list the shipped sweeps", description="List sweeps/*.toml.")
 
     s = sub.add_parser("show", help="expand a sweep and print its grid",
@@ -435,6 +445,33 @@ def cmd_s2s(args) -> int:
     return EXIT_OK
 
 
+def cmd_wbox(args) -> int:
+    import numpy as np
+
+    from hlip_jax import coverage, robust, store
+    d = Path(args.dir)
+    if not d.is_dir():
+        raise UserError(f"{d}: results directory not found")
+    if args.method not in coverage.W_METHODS:
+        raise UserError(f"--method: {args.method!r}; allowed: {', '.join(coverage.W_METHODS)}")
+    try:
+        rows = store.read_coverage(d)
+        frame, w, groups = robust.w_from_coverage(rows, args.method, args.group)
+    except store.StoreError as err:
+        raise UserError(f"{err} (write it with: hlip-sweep coverage {d})") from None
+    except ValueError as err:
+        raise UserError(f"--group/--method: {err}") from None
+    w = np.ceil(np.round(w * 1e4, 6)) / 1e4          # up to 1e-4, not past a value on the grid
+    print(f"# W of {d} (coverage.csv, {args.method}; groups: {', '.join(groups)}):")
+    print("# per plane the largest |w_lo|, |w_hi|, rounded up to 1e-4")
+    print("[base.mpc]")
+    print(f'w_frame = "{frame}"')
+    for i in (0, 1):
+        for j, name in enumerate("cpv"):
+            print(f"w_{name}_{i + 1} = {w[i, j]:.4f}")
+    return EXIT_OK
+
+
 def cmd_ticks(args) -> int:
     import numpy as np
 
@@ -524,7 +561,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
                "bench": cmd_bench, "ticks": cmd_ticks, "coverage": cmd_coverage,
-               "s2s": cmd_s2s}[args.cmd]
+               "s2s": cmd_s2s, "wbox": cmd_wbox}[args.cmd]
     try:
         with _sigterm_unwinds():
             return handler(args)

@@ -144,3 +144,44 @@ def frame_weights(dx, dy, heading, frame_heading):
     phi = heading * frame_heading
     c, s = jnp.cos(phi), jnp.sin(phi)
     return jnp.abs(c * dx + s * dy), jnp.abs(-s * dx + c * dy)
+
+
+#: coverage.csv plane names of each W frame (planes 1, 2), as :func:`hlip_jax.store.write_coverage` writes them
+PLANE_NAMES = {"heading": ("sagittal", "lateral"), "world": ("world x", "world y")}
+
+
+def w_from_coverage(rows, method: str = "box", groups=None):
+    """The W box a tube needs, from the rows of a results directory's coverage.csv.
+
+    Per plane, the symmetric half-widths w = max(|w_lo|, |w_hi|) [m, m, m/s] of every chosen
+    group's W (``groups``: names; None = all), enclosing them all.  Returns (frame, w (2, 3),
+    the groups used).  ValueError (naming what is allowed) when ``method`` has no rows, a group
+    is unknown, the rows mix frames, a plane is missing, or W is on [p, v] (the tube needs the
+    COM position: a gain with ``with_position``)."""
+    rows = [r for r in rows if r["w_method"] == method]
+    if not rows:
+        raise ValueError(f"method {method!r}: no coverage.csv rows of it")
+    known = sorted({str(r["group"]) for r in rows})
+    chosen = known if groups is None else list(groups)
+    unknown = [g for g in chosen if g not in known]
+    if unknown:
+        raise ValueError(f"group {unknown[0]!r} is not in coverage.csv; allowed: {', '.join(known)}")
+    rows = [r for r in rows if str(r["group"]) in chosen]
+    frames = {f for f, names in PLANE_NAMES.items() for r in rows if r["plane"] in names}
+    if len(frames) != 1:
+        raise ValueError(f"the chosen groups' planes are in frames {sorted(frames)}; choose groups "
+                         "of one frame (--group)")
+    frame = frames.pop()
+    w = np.full((2, 3), -np.inf)
+    for r in rows:
+        if r["state"] != "[c, p, v]":
+            raise ValueError(f"group {r['group']!r}: W is on {r['state']}; the tube needs "
+                             "[c, p, v] (gain.with_position = true)")
+        lo, hi = (np.array(str(r[k]).split(), float) for k in ("w_lo", "w_hi"))
+        if lo.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            raise ValueError(f"group {r['group']!r}, plane {r['plane']}: no finite W (too few samples)")
+        i = PLANE_NAMES[frame].index(r["plane"])
+        w[i] = np.maximum(w[i], np.maximum(np.abs(lo), np.abs(hi)))
+    if not np.all(np.isfinite(w)):
+        raise ValueError(f"a plane of {PLANE_NAMES[frame]} has no rows")
+    return frame, w, chosen

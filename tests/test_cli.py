@@ -66,7 +66,7 @@ def test_help_subprocess():
     assert r.returncode == 0 and "usage: hlip-sweep" in r.stdout and "run" in r.stdout
 
 
-@pytest.mark.parametrize("sub", [["run"], ["report"], ["list"], ["show"], ["s2s"], ["ticks"]])
+@pytest.mark.parametrize("sub", [["run"], ["report"], ["list"], ["show"], ["s2s"], ["ticks"], ["wbox"]])
 def test_help_everywhere(sub, capsys):
     code, out, _ = cli(capsys, *sub, "--help")
     assert code == 0 and "usage: hlip-sweep" in out
@@ -657,3 +657,39 @@ def test_s2s_fit_command(tmp_path, tiny_sweep, capsys, fake_loop):
     code, text, err = cli(capsys, "s2s", out, "--scenarios", "line")
     assert code == 0, err
     assert "2 scenarios" in text and text.count("H-LIP") == 4
+
+
+def test_wbox_prints_sweep_lines_of_the_w_box(tmp_path, capsys):
+    """`wbox` reads coverage.csv and prints [base.mpc] lines that a sweep file accepts: the
+    symmetric enclosure of the groups' W, rounded up to 1e-4; bad input exits 2."""
+    import tomllib
+
+    from hlip_jax import sweep
+    d = tmp_path / "res"
+    d.mkdir()
+    rows = [("a", "sagittal", "-0.01 -0.05 -0.1", "0.02001 0.01 0.03"),
+            ("a", "lateral", "-0.003 -0.002 -0.02", "0.001 0.004 0.005"),
+            ("b", "sagittal", "-0.005 -0.07 -0.01", "0.004 0.06 0.12"),
+            ("b", "lateral", "-0.001 -0.001 -0.001", "0.002 0.003 0.03")]
+    with open(d / "coverage.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["group", "plane", "w_method", "state", "w_lo", "w_hi"])
+        for g, p, lo, hi in rows:
+            w.writerow([g, p, "box", "[c, p, v]", lo, hi])
+    code, out, _ = cli(capsys, "wbox", d)
+    assert code == 0
+    mpc = tomllib.loads(out)["base"]["mpc"]
+    assert mpc == {"w_frame": "heading", "w_c_1": 0.0201, "w_p_1": 0.07, "w_v_1": 0.12,
+                   "w_c_2": 0.003, "w_p_2": 0.004, "w_v_2": 0.03}
+    sweep_file = tmp_path / "tube.toml"
+    sweep_file.write_text('name = "tube"\n[base]\nplant = "hlip"\n' + out.split("[base.mpc]")[1].join(
+        ["[base.mpc]\nrobust = true", ""]) + '\n[[paths]]\nname = "l"\nshape = "line"\n')
+    sc = sweep.load_sweep(sweep_file).scenarios[0]
+    assert sc.mpc.robust and sc.mpc.w_c_1 == 0.0201 and sc.mpc.w_v_2 == 0.03
+    code, out, _ = cli(capsys, "wbox", d, "--group", "b")
+    assert code == 0 and "w_c_1 = 0.0050" in out
+    for args, msg in ((["--group", "c"], "allowed: a, b"), (["--method", "x"], "allowed: box"),):
+        code, _, err = cli(capsys, "wbox", d, *args)
+        assert code == 2 and msg in err
+    code, _, err = cli(capsys, "wbox", tmp_path)
+    assert code == 2 and "coverage.csv" in err

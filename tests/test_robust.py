@@ -126,3 +126,43 @@ def test_tube_keeps_the_com_out_of_every_disc_on_the_hlip_plant():
     assert np.all(valid[robust_on].sum(axis=1) == rollout.n_steps_of(cfgs[0])), "all walk"
     assert np.all(clear[robust_on] >= 0.0), clear[robust_on]
     assert np.any(clear[~robust_on] < 0.0), "the nominal MPC violates some disc on these seeds"
+
+
+def _cov_row(group, plane, lo, hi, method="box", state="[c, p, v]"):
+    return {"group": group, "plane": plane, "w_method": method, "state": state,
+            "w_lo": " ".join(map(str, lo)), "w_hi": " ".join(map(str, hi))}
+
+
+def test_w_from_coverage_encloses_the_chosen_groups_symmetrically():
+    # two groups in the heading frame: per plane and coordinate, max(|w_lo|, |w_hi|) over both
+    rows = [_cov_row("a", "sagittal", (-0.01, -0.05, -0.1), (0.02, 0.01, 0.03)),
+            _cov_row("a", "lateral", (-0.03, -0.02, -0.2), (0.01, 0.04, 0.05)),
+            _cov_row("b", "sagittal", (-0.005, -0.07, -0.01), (0.004, 0.06, 0.12)),
+            _cov_row("b", "lateral", (-0.001, -0.001, -0.001), (0.002, 0.003, 0.3)),
+            _cov_row("a", "sagittal", (-9, -9, -9), (9, 9, 9), method="quantile"),
+            _cov_row("a", "lateral", (-9, -9, -9), (9, 9, 9), method="quantile")]
+    frame, w, groups = robust.w_from_coverage(rows)
+    assert frame == "heading" and groups == ["a", "b"]
+    np.testing.assert_array_equal(w, [[0.02, 0.07, 0.12], [0.03, 0.04, 0.3]])
+    frame, w, _ = robust.w_from_coverage(rows, "box", ["b"])
+    np.testing.assert_array_equal(w, [[0.005, 0.07, 0.12], [0.002, 0.003, 0.3]])
+    _, w, _ = robust.w_from_coverage(rows, "quantile")
+    np.testing.assert_array_equal(w, np.full((2, 3), 9.0))
+    world = [_cov_row("w", "world x", (-1, -1, -1), (1, 1, 1)), _cov_row("w", "world y", (-2, 0, 0), (0, 0, 3))]
+    frame, w, _ = robust.w_from_coverage(world)
+    assert frame == "world"
+    np.testing.assert_array_equal(w, [[1, 1, 1], [2, 0, 3]])
+
+
+@pytest.mark.parametrize("rows,kwargs,match", [
+    ([_cov_row("a", "sagittal", (0, 0, 0), (1, 1, 1))], {"groups": ["z"]}, "'z' is not in coverage.csv; allowed: a"),
+    ([_cov_row("a", "sagittal", (0, 0, 0), (1, 1, 1))], {"method": "quantile"}, "no coverage.csv rows"),
+    ([_cov_row("a", "sagittal", (0, 0, 0), (1, 1, 1))], {}, "has no rows"),
+    ([_cov_row("a", "sagittal", (0, 0, 0), (1, 1, 1)), _cov_row("b", "world x", (0, 0, 0), (1, 1, 1))], {},
+     "frames"),
+    ([_cov_row("a", "sagittal", (0, 0), (1, 1), state="[p, v]")], {}, "needs"),
+    ([_cov_row("a", "sagittal", ("nan",) * 3, ("nan",) * 3)], {}, "no finite W"),
+])
+def test_w_from_coverage_refuses(rows, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        robust.w_from_coverage(rows, **kwargs)
