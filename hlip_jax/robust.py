@@ -146,7 +146,8 @@ def frame_weights(dx, dy, heading, frame_heading):
     return jnp.abs(c * dx + s * dy), jnp.abs(-s * dx + c * dy)
 
 
-#: coverage.csv plane names of each W frame (planes 1, 2), as :func:`hlip_jax.store.write_coverage` writes them
+#: coverage.csv's plane names of each W frame (planes 1, 2), as
+#: :func:`hlip_jax.store.write_coverage` writes them
 PLANE_NAMES = {"heading": ("sagittal", "lateral"), "world": ("world x", "world y")}
 
 
