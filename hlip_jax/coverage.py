@@ -57,12 +57,16 @@ from hlip_jax import stats
 
 __all__ = ["RunSamples", "conformal_rank", "conformal_box_w", "box_w", "split_by_replicate",
            "split_by_value", "time_halves", "coverage_ci", "plane_row", "group_rows",
-           "COLUMNS", "W_METHODS"]
+           "COLUMNS", "W_METHODS", "PLANES"]
 
 #: w_method values: "box" = per-axis min/max of the training samples outside push steps;
 #: "box_with_push" = the same including push steps (written only when training has push steps);
 #: "quantile" = split-conformal box at level q, push steps excluded.
 W_METHODS = ("box", "box_with_push", "quantile")
+
+#: plane column values per analysis frame (planes 1, 2): the heading frame's sagittal and
+#: lateral planes, or the world's x and y (:func:`hlip_jax.metrics.analysis_frame`)
+PLANES = {"heading": ("sagittal", "lateral"), "world": ("world x", "world y")}
 
 #: coverage.csv columns, in order: train_runs / test_runs = runs on each side, train_fell /
 #: test_fell = those that fell (the training ones are left out of W); train_samples =

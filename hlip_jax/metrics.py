@@ -136,14 +136,14 @@ def analysis_frame(log: dict, s: int) -> str:
 
 
 def error_samples(log: dict, s: int, mask: np.ndarray, du: np.ndarray):
-    """(A, B, K, e, w, wmask) of scenario ``s`` in its analysis frame and state
-    (:func:`analysis_frame`, :func:`error_model`): errors e (K, 2, n), error-system
-    disturbances w (K−1, 2, n) with e_{k+1} = A_cl e_k + w_k (:func:`closed_loop`), and the
-    mask of counted w (both ends in ``mask``); ``du`` (K, 2): the foot-placement errors
-    (:func:`_placement`)."""
+    """(A, B, K, A_cl, e, w, wmask) of scenario ``s`` in its analysis frame and state
+    (:func:`analysis_frame`, :func:`error_model`): the closed-loop matrix A_cl (2, n, n) of
+    :func:`closed_loop`, errors e (K, 2, n), error-system disturbances w (K−1, 2, n) with
+    e_{k+1} = A_cl e_k + w_k, and the mask of counted w (both ends in ``mask``); ``du``
+    (K, 2): the foot-placement errors (:func:`_placement`)."""
     from hlip_jax import invariant as inv
     A, B, Kg, sl = error_model(log, s)
-    Acl, beta = closed_loop(log, s)
+    Acl, beta = inv.closed_loop(A, B, Kg, _anchor(log, s)[sl])
     x = np.asarray(log["x_robot"][s], np.float64)[:, :, sl]     # (K, 2, n)
     u = np.asarray(log["u_robot"][s], np.float64)
     e = np.asarray(log["e"][s], np.float64)[:, :, sl]
@@ -154,7 +154,7 @@ def error_samples(log: dict, s: int, mask: np.ndarray, du: np.ndarray):
     if analysis_frame(log, s) == "heading":
         e, w = inv.heading_frame(np.where(mask[:, None, None], e, 0.0), w,
                                  np.asarray(log["ref_heading"][s], np.float64), Acl[0])
-    return A, B, Kg, e, w, mask[1:] & mask[:-1]
+    return A, B, Kg, Acl, e, w, mask[1:] & mask[:-1]
 
 
 def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> dict:
@@ -162,8 +162,7 @@ def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> di
     (K, 2): the scenario's foot-placement errors (:func:`_placement`)."""
     from hlip_jax import invariant as inv
     out = {}
-    A, B, Kg, e, w, wmask = error_samples(log, s, mask, du)
-    acl = closed_loop(log, s)[0]
+    _, _, _, acl, e, w, wmask = error_samples(log, s, mask, du)
     nK = int(mask.sum())
     half = nK // 2
     for p, plane in enumerate("xy"):

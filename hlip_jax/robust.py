@@ -146,11 +146,6 @@ def frame_weights(dx, dy, heading, frame_heading):
     return jnp.abs(c * dx + s * dy), jnp.abs(-s * dx + c * dy)
 
 
-#: coverage.csv's plane names of each W frame (planes 1, 2), as
-#: :func:`hlip_jax.store.write_coverage` writes them
-PLANE_NAMES = {"heading": ("sagittal", "lateral"), "world": ("world x", "world y")}
-
-
 def w_from_coverage(rows, method: str = "box", groups=None):
     """The W box a tube needs, from the rows of a results directory's coverage.csv.
 
@@ -159,6 +154,7 @@ def w_from_coverage(rows, method: str = "box", groups=None):
     the groups used).  ValueError (naming what is allowed) when ``method`` has no rows, a group
     is unknown, the rows mix frames, a plane is missing, or W is on [p, v] (the tube needs the
     COM position: a gain with ``with_position``)."""
+    from hlip_jax import coverage              # the coverage.csv format (scipy: not at start-up)
     rows = [r for r in rows if r["w_method"] == method]
     if not rows:
         raise ValueError(f"method {method!r}: no coverage.csv rows of it")
@@ -168,7 +164,7 @@ def w_from_coverage(rows, method: str = "box", groups=None):
     if unknown:
         raise ValueError(f"group {unknown[0]!r} is not in coverage.csv; allowed: {', '.join(known)}")
     rows = [r for r in rows if str(r["group"]) in chosen]
-    frames = {f for f, names in PLANE_NAMES.items() for r in rows if r["plane"] in names}
+    frames = {f for f, names in coverage.PLANES.items() for r in rows if r["plane"] in names}
     if len(frames) != 1:
         raise ValueError(f"the chosen groups' planes are in frames {sorted(frames)}; choose groups "
                          "of one frame (--group)")
@@ -181,8 +177,8 @@ def w_from_coverage(rows, method: str = "box", groups=None):
         lo, hi = (np.array(str(r[k]).split(), float) for k in ("w_lo", "w_hi"))
         if lo.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ValueError(f"group {r['group']!r}, plane {r['plane']}: no finite W (too few samples)")
-        i = PLANE_NAMES[frame].index(r["plane"])
+        i = coverage.PLANES[frame].index(r["plane"])
         w[i] = np.maximum(w[i], np.maximum(np.abs(lo), np.abs(hi)))
     if not np.all(np.isfinite(w)):
-        raise ValueError(f"a plane of {PLANE_NAMES[frame]} has no rows")
+        raise ValueError(f"a plane of {coverage.PLANES[frame]} has no rows")
     return frame, w, chosen

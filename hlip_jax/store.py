@@ -57,7 +57,7 @@ import numpy as np
 
 from hlip_jax import steplog
 from hlip_jax.metrics import (SUMMARY_METRICS, W_MIN_HALFWIDTH, active_pushes,  # noqa: F401
-                              analysis_frame, closed_loop, error_model, error_samples, first_push,
+                              analysis_frame, error_model, error_samples, first_push,
                               placement, push_recovery, scenario_metrics)
 from hlip_jax import sweep as sweep_mod
 
@@ -457,14 +457,13 @@ def _run_samples(z: dict, j: int, cfg):
     of a chunk, with the same errors and disturbances as the summary metrics."""
     from hlip_jax import coverage as cov
     mask = steplog.alive(z["valid"][j])
-    A, B, Kg, e, w, wmask = error_samples(z, j, mask, placement(z, j))
+    A, B, Kg, Acl, e, w, wmask = error_samples(z, j, mask, placement(z, j))
     frame = analysis_frame(z, j)
     ec = np.asarray(z["e"][j], np.float64)[:, :, 0]
     if frame == "heading":
         ec = steplog.to_heading_frame(ec, np.asarray(z["ref_heading"][j], np.float64))
     t = np.asarray(z["t_plant"][j], np.float64)
     dpush, epush = _push_masks(np.where(mask, t, np.inf), cfg)
-    Acl = closed_loop(z, j)[0]
     key = (cfg.swept.get("path", ""), cfg.plant, frame,
            np.round(np.concatenate([A.ravel(), B.ravel(), Kg.ravel(), Acl.ravel()]), 12).tobytes())
     fell = bool(np.asarray(z["fail_step"][j]) >= 0)
@@ -524,7 +523,7 @@ def coverage_rows(out_dir, q: float = COVERAGE_Q, train_on: tuple | None = None)
         label = _group_label(g["cfgs"])
         seen[label] = seen.get(label, 0) + 1
         label += f" #{seen[label]}" if seen[label] > 1 else ""
-        planes = ("sagittal", "lateral") if g["frame"] == "heading" else ("world x", "world y")
+        planes = cov.PLANES[g["frame"]]
         split = (f"{field} in {values}" if field is not None else
                  "seed" if all("seed" in c.swept for c in g["cfgs"]) else "run")
         rows += cov.group_rows(label, g["Acl"], g["runs"], g["keys"], planes, q,

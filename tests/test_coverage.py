@@ -255,7 +255,7 @@ def test_true_w_gives_full_across_run_coverage(hlip_run):
     true_W = inv.Box(-np.array([NP, NP, NV]) - 1e-6, np.array([NP, NP, NV]) + 1e-6)
     for s in range(log["index"].size):
         mask = steplog.alive(log["valid"][s])
-        _, _, _, e, _, _ = metrics.error_samples(log, s, mask, metrics.placement(log, s))
+        _, _, _, _, e, _, _ = metrics.error_samples(log, s, mask, metrics.placement(log, s))
         for p in range(2):
             E = inv.mrpi(A + np.outer(B, K[p]), true_W)
             k, n, c, lo, hi = cov.coverage_ci(E, e[mask, p])
