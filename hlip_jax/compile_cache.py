@@ -10,7 +10,9 @@ Directory: ``--compile-cache DIR`` where given, else ``$HLIP_JAX_CACHE_DIR``, el
 ``$XDG_CACHE_HOME/hlip_jax/xla``, else ``~/.cache/hlip_jax/xla``.  Only programs that took at
 least ``MIN_COMPILE_S`` to compile are stored (the small ones are quicker to rebuild than to
 read).  The cache is keyed by JAX on the program, the JAX/XLA versions and the device, so a
-stale entry is never used for a different program.
+stale entry is never used for a different program.  The traced closed loops that lead to
+those programs are kept beside them (``DIR/traces``, :mod:`hlip_jax.trace_cache`), so a rerun
+skips tracing too.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import os
 from pathlib import Path
 
 MIN_COMPILE_S = 1.0    # [s] programs faster to compile than this are not stored
+TRACES = "traces"      # subdirectory of the traced closed loops (hlip_jax.trace_cache)
 
 
 class CacheDirError(ValueError):
@@ -48,9 +51,13 @@ def usable(path: Path) -> Path:
 
 def enable(path: Path) -> None:
     """Store and reuse compiled programs in ``path`` for the rest of the process (call before
-    the first compile: JAX reads the setting when it first compiles)."""
+    the first compile: JAX reads the setting when it first compiles), and the traced closed
+    loops in ``path / "traces"`` (:mod:`hlip_jax.trace_cache`)."""
     import jax
+
+    from hlip_jax import trace_cache
 
     jax.config.update("jax_compilation_cache_dir", str(usable(path)))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_S)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    trace_cache.enable(path / TRACES)

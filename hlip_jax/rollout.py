@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import hlip, mpc, paths, progress, qp, robust
+from hlip_jax import hlip, mpc, paths, progress, qp, robust, trace_cache
 from hlip_jax.config import (GROUND_KINDS, STATIC_FIELDS, RealismConfig, ScenarioConfig,
                              field_value)
 from hlip_jax import plants
@@ -449,9 +449,11 @@ _finish_batch = jax.jit(jax.vmap(_finish))
 
 
 def compiled_loops() -> int:
-    """How many compiled closed-loop programs this process holds (whole runs and segments):
-    a sweep whose chunks share their shapes adds one."""
-    return _run_whole._cache_size() + _segment_batch._cache_size()
+    """How many compiled closed-loop programs this process holds (whole runs and segments,
+    traced here or loaded by :mod:`hlip_jax.trace_cache`): a sweep whose chunks share their
+    shapes adds one."""
+    return (_run_whole._cache_size() + _segment_batch._cache_size()
+            + trace_cache.loaded(_run_whole.__name__) + trace_cache.loaded(_segment_batch.__name__))
 
 
 def segment_length(n_steps: int) -> int:
@@ -466,15 +468,17 @@ def run(batch: Scenario, static: Static):
     segments of :func:`segment_length` (one compiled program serves every segment: the step
     indices are data, and steps past ``n_steps`` are inactive), and every finished segment is
     reported to :func:`hlip_jax.progress.step_done` from Python — no host callback inside the
-    compiled loop, so it stays cacheable on disk (:mod:`hlip_jax.compile_cache`).  Both give
-    the same numbers: a segment boundary only splits the scan."""
+    compiled loop, so it stays cacheable on disk (:mod:`hlip_jax.compile_cache`; the traced
+    programs too, :mod:`hlip_jax.trace_cache`).  Both give the same numbers: a segment
+    boundary only splits the scan."""
     if not static.progress:
-        return _run_whole(batch, static)
+        return trace_cache.call(_run_whole, static, batch)
     K, L = static.n_steps, segment_length(static.n_steps)
-    carry, ok0 = _start_batch(batch, static)
+    carry, ok0 = trace_cache.call(_start_batch, static, batch)
     outs = []
     for k0 in range(0, K, L):
-        carry, out = _segment_batch(batch, carry, jnp.arange(k0, k0 + L), static)
+        carry, out = trace_cache.call(_segment_batch, static, batch, carry,
+                                      jnp.arange(k0, k0 + L))
         outs.append(out)
         jax.block_until_ready(carry)
         progress.step_done(min(k0 + L, K) - 1, K)
