@@ -461,6 +461,18 @@ def segment_length(n_steps: int) -> int:
     return max(1, math.ceil(n_steps / 20))
 
 
+def _compile_ahead(batch: Scenario, static: Static, L: int) -> None:
+    """Where the trace cache serves the loop (:mod:`hlip_jax.trace_cache`): trace or load the
+    start and segment programs (the segment's carry shapes from the start's program) and
+    compile both at once."""
+    shapes = trace_cache.out_shapes(_start_batch, static, batch)
+    if shapes is None:
+        return
+    ks = jax.ShapeDtypeStruct((L,), jnp.arange(L).dtype)
+    trace_cache.compile_together([(_start_batch, static, (batch,)),
+                                  (_segment_batch, static, (batch, shapes[0], ks))])
+
+
 def run(batch: Scenario, static: Static):
     """Every scenario's closed loop (the batch on the devices it was placed on).
 
@@ -474,6 +486,7 @@ def run(batch: Scenario, static: Static):
     if not static.progress:
         return trace_cache.call(_run_whole, static, batch)
     K, L = static.n_steps, segment_length(static.n_steps)
+    _compile_ahead(batch, static, L)
     carry, ok0 = trace_cache.call(_start_batch, static, batch)
     outs = []
     for k0 in range(0, K, L):

@@ -46,9 +46,11 @@ _dir: Path | None = None
 
 
 class Program(NamedTuple):
-    """A loaded program: its jitted call on flat leaves and the output's tree structure."""
-    call: Callable
+    """A loaded program: the exported function, its output's tree structure, and how to run
+    it on flat leaves (jitted on first use, or compiled ahead by :func:`compile_together`)."""
+    exported: Any
     out_tree: Any
+    run: Callable
 
 
 _loaded: dict[str, Program] = {}      # key -> program, for the rest of the process
@@ -168,7 +170,7 @@ def _load(file: Path) -> Program | None:
     except Exception:                               # damaged or from an incompatible writer
         file.unlink(missing_ok=True)
         return None
-    return Program(jax.jit(exported.call), out_tree)
+    return Program(exported, out_tree, jax.jit(exported.call))
 
 
 def _export(fn: Callable, static, args, treedef) -> tuple[Any, Any, bytes]:
@@ -213,17 +215,70 @@ def _program(fn: Callable, static, args, k: str) -> Program | None:
             _unexportable.add(k)
             return None
         _store(file, blob)
-        prog = Program(jax.jit(exported.call), out_tree)
+        prog = Program(exported, out_tree, jax.jit(exported.call))
     _loaded[k] = prog
     return prog
+
+
+def _lookup(fn: Callable, static, args) -> tuple[str | None, Program | None]:
+    """(key, program) of ``fn(*args, static=static)``; (None, None) where the cache does not
+    serve it (off, several devices, incomplete settings, not exportable)."""
+    leaves, treedef = jax.tree.flatten(args)
+    k = key(fn.__name__, static, leaves, treedef) if _usable() else None
+    if k is None or k in _unexportable:
+        return None, None
+    return k, _program(fn, static, args, k)
 
 
 def call(fn: Callable, static, *args):
     """``fn(*args, static=static)`` — ``fn`` a jitted function of the arrays ``args`` and a
     hashable static ``static`` — through the cache where it is on and usable (module doc)."""
-    leaves, treedef = jax.tree.flatten(args)
-    k = key(fn.__name__, static, leaves, treedef) if _usable() else None
-    prog = None if k is None or k in _unexportable else _program(fn, static, args, k)
+    _, prog = _lookup(fn, static, args)
     if prog is None:
         return fn(*args, static=static)
-    return jax.tree.unflatten(prog.out_tree, prog.call(*leaves))
+    return jax.tree.unflatten(prog.out_tree, prog.run(*jax.tree.leaves(args)))
+
+
+def out_shapes(fn: Callable, static, *args):
+    """``fn(*args, static=static)``'s output as :class:`jax.ShapeDtypeStruct` leaves, from
+    its stored or newly traced program, without compiling it; None where the cache does
+    not serve the call.  ``args`` may hold ShapeDtypeStructs."""
+    _, prog = _lookup(fn, static, args)
+    if prog is None:
+        return None
+    return jax.tree.unflatten(prog.out_tree, [jax.ShapeDtypeStruct(a.shape, a.dtype)
+                                              for a in prog.exported.out_avals])
+
+
+def _ahead(prog: Program) -> Callable:
+    """Compile ``prog`` for its argument types now; the result runs flat leaves (the jitted
+    call where a caller's argument types differ from the exported ones, e.g. weak types)."""
+    avals = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in prog.exported.in_avals]
+    compiled = jax.jit(prog.exported.call).lower(*avals).compile()
+    jitted = prog.run
+
+    def run(*leaves):
+        try:
+            return compiled(*leaves)
+        except TypeError:          # argument types differ from the compiled ones
+            return jitted(*leaves)
+    return run
+
+
+def compile_together(calls) -> None:
+    """Trace or load the programs of several calls ``(fn, static, args)`` (one after the
+    other: tracing holds Python's lock), then compile them concurrently in threads (XLA
+    compiles without it), so a loop's start and step programs cost the longer compile, not
+    the sum.  Calls the cache does not serve are left to their first use."""
+    todo = {}
+    for fn, static, args in calls:
+        k, prog = _lookup(fn, static, args)
+        if prog is not None and isinstance(prog.run, jax.stages.Wrapped):
+            todo[k] = prog
+    if not todo:
+        return
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(len(todo)) as pool:
+        runs = dict(zip(todo, pool.map(_ahead, todo.values())))
+    for k, run in runs.items():
+        _loaded[k] = todo[k]._replace(run=run)

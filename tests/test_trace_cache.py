@@ -136,3 +136,16 @@ def test_compile_cache_turns_the_trace_cache_on_beside_it(tmp_path, monkeypatch)
         assert trace_cache.directory() == tmp_path / compile_cache.TRACES
     finally:
         trace_cache.enable(old)
+
+
+def test_segments_compile_ahead_with_the_keys_the_loop_uses(cache, monkeypatch):
+    """The start and segment programs are compiled together before the loop, under the keys
+    the loop's calls then find (one trace each, no second entry), with the same numbers."""
+    calls = _count_traces(monkeypatch)
+    ahead = []
+    inner = trace_cache._ahead
+    monkeypatch.setattr(trace_cache, "_ahead", lambda p: ahead.append(1) or inner(p))
+    out = _run(True)
+    assert len(calls) == 2 and len(ahead) == 2
+    assert len(list(cache.glob("*" + trace_cache.SUFFIX))) == 2
+    _assert_equal(out, _plain(True))
