@@ -138,8 +138,9 @@ def _use_cache(args) -> None:
     """Turn the persistent compilation cache on as the options ask.  A directory given with
     --compile-cache that cannot be used is a user error; an unusable default directory only
     turns the cache off (with a note)."""
-    from hlip_jax import compile_cache
+    from hlip_jax import compile_cache, trace_cache
     if args.no_compile_cache:
+        trace_cache.disable()
         return
     if args.compile_cache:
         try:

@@ -468,7 +468,7 @@ def _compile_ahead(batch: Scenario, static: Static, L: int) -> None:
     shapes = trace_cache.out_shapes(_start_batch, static, batch)
     if shapes is None:
         return
-    ks = jax.ShapeDtypeStruct((L,), jnp.arange(L).dtype)
+    ks = jax.ShapeDtypeStruct((L,), jax.dtypes.canonicalize_dtype(jnp.int_))   # jnp.arange's
     trace_cache.compile_together([(_start_batch, static, (batch,)),
                                   (_segment_batch, static, (batch, shapes[0], ks))])
 

@@ -11,65 +11,95 @@ A stored program is found by a key (SHA-256) of everything its tracing depends o
 
 * the package's own source files and the Cassie model files (their bytes),
 * the versions of jax, jaxlib, numpy, mujoco and mujoco-mjx,
-* the JAX backend, device kind, x64 flag and default matmul precision,
+* the JAX backend, device kind, and the JAX settings that change a traced program
+  (:data:`JAX_FLAGS`: x64, matmul precision, the PRNG implementation, type promotion),
 * the function's name, ``repr`` of its static settings, and the arguments' tree structure
-  (with its static data), shapes and dtypes.
+  (with its static data, :func:`describe`), shapes and dtypes.
 
-So editing the code, upgrading a library or changing a setting makes a new entry; nothing is
-ever reused for a program it was not traced from.  Static settings whose ``repr`` is not a
-complete description (truncated arrays, object addresses) are never stored.  Programs that
-cannot be exported (e.g. foreign calls without a stable ABI, such as MJX's Warp physics) and
-runs over several devices or processes take the ordinary jitted call.  A damaged entry is
-replaced by a fresh trace.  The directory is ``<compilation cache>/traces``; the CLI's
-``--no-compile-cache`` turns both caches off.
+So editing the code, upgrading a library or changing a setting makes a new entry.  Static
+data that cannot be described by its contents alone (functions, objects of unknown types,
+truncated ``repr`` s, object addresses) keeps the call out of the cache.  Programs that cannot
+be exported (foreign calls without a stable ABI, such as MJX's Warp physics) are marked so
+on disk and take the ordinary jitted call, as do runs over several devices or processes,
+runs under ``jax.disable_jit`` and installs without ``flatbuffers`` (jax.export's
+serializer).  The directory is ``<compilation cache>/traces``; the CLI's
+``--no-compile-cache`` turns both caches off.  Entries are Python pickles: like JAX's own
+compilation cache, the directory must be writable by its user only.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import functools
 import hashlib
+import importlib.util
 import os
 import pickle
 import tempfile
 from pathlib import Path
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable, NamedTuple, Optional
 
 import jax
 import numpy as np
 from jax import export as jax_export
 
 SUFFIX = ".hlotrace"
+REFUSED = ".unexportable"    # marker of a program jax.export refused
 #: libraries whose version is part of every key (missing ones count as "absent")
 LIBRARIES = ("jax", "jaxlib", "numpy", "mujoco", "mujoco-mjx")
+#: JAX settings that change a traced program (read with getattr: absent ones count as None)
+JAX_FLAGS = ("jax_enable_x64", "jax_default_matmul_precision", "jax_default_prng_impl",
+             "jax_enable_custom_prng", "jax_threefry_partitionable",
+             "jax_numpy_dtype_promotion", "jax_numpy_rank_promotion")
 
-_dir: Path | None = None
+_dir: Optional[Path] = None
 
 
 class Program(NamedTuple):
-    """A loaded program: the exported function, its output's tree structure, and how to run
-    it on flat leaves (jitted on first use, or compiled ahead by :func:`compile_together`)."""
+    """A loaded program: the exported function, its output's tree structure, its jitted call
+    on flat leaves, and the executable compiled ahead by :func:`compile_together` (None
+    until then)."""
     exported: Any
     out_tree: Any
-    run: Callable
+    jitted: Callable
+    compiled: Optional[Callable]
+
+    def run(self, leaves):
+        """The outputs' flat leaves.  The compiled executable where it accepts the
+        arguments (it raises TypeError where their types differ from the exported ones)."""
+        if self.compiled is not None:
+            try:
+                return self.compiled(*leaves)
+            except TypeError:
+                pass
+        return self.jitted(*leaves)
 
 
 _loaded: dict[str, Program] = {}      # key -> program, for the rest of the process
-_unexportable: set[str] = set()       # keys whose export failed (not retried in this process)
 
 
-def enable(path: Path | None) -> None:
-    """Store and reuse traced programs under ``path`` (None: off) for the rest of the process."""
+def enable(path: Path) -> None:
+    """Store and reuse traced programs under ``path`` for the rest of the process."""
     global _dir
-    _dir = None if path is None else Path(path)
+    _dir = Path(path)
 
 
-def directory() -> Path | None:
-    """Where programs are stored now (None: the cache is off)."""
+def disable() -> None:
+    """Trace every call afresh from now on (programs already loaded are forgotten)."""
+    global _dir
+    _dir = None
+    _loaded.clear()
+
+
+def directory() -> Optional[Path]:
+    """Where programs are stored now (None while the cache is off)."""
     return _dir
 
 
 def loaded(name: str) -> int:
-    """How many programs of the function ``name`` this process holds from the cache."""
+    """How many programs of the function ``name`` this process runs through the cache
+    (loaded from disk or traced and stored here)."""
     return sum(1 for k in _loaded if k.startswith(name + "-"))
 
 
@@ -92,7 +122,9 @@ def code_digest() -> str:
     return h.hexdigest()
 
 
+@functools.lru_cache(maxsize=1)
 def _versions() -> str:
+    """``lib=version`` of every library in :data:`LIBRARIES`."""
     from importlib import metadata
     out = []
     for lib in LIBRARIES:
@@ -104,25 +136,35 @@ def _versions() -> str:
 
 
 def _static_text(x) -> str:
-    """A description of a node's static data that depends only on its contents: arrays by
-    dtype, shape and a digest of their bytes, objects with slots or attributes by those.
-    Raises ValueError for anything whose ``repr`` is an object address."""
+    """A description of a node's static data by its contents alone: scalars, strings, enums
+    and dtypes by ``repr``, arrays by dtype, shape and a digest of their bytes, containers,
+    dataclasses and slotted objects by their items.  Raises ValueError for anything else
+    (functions, other objects): their ``repr`` may hide what tracing reads."""
+    if x is None or isinstance(x, (bool, int, float, complex, str, bytes, enum.Enum,
+                                   np.generic, np.dtype)):
+        return repr(x)
+    if isinstance(x, type):
+        return f"type:{x.__module__}.{x.__qualname__}"
     if isinstance(x, np.ndarray):
         digest = hashlib.sha256(np.ascontiguousarray(x).tobytes()).hexdigest()[:16]
         return f"array({x.dtype},{x.shape},{digest})"
+    name = f"{type(x).__module__}.{type(x).__qualname__}"
     if isinstance(x, (tuple, list)):
-        return type(x).__name__ + "(" + ",".join(_static_text(v) for v in x) + ")"
+        return name + "(" + ",".join(_static_text(v) for v in x) + ")"
     if isinstance(x, dict):
-        return "{" + ",".join(f"{k!r}:{_static_text(x[k])}" for k in sorted(x, key=repr)) + "}"
-    text = repr(x)
-    if " at 0x" not in text:
-        return text
-    slots = getattr(type(x), "__slots__", None)
-    fields = ({k: getattr(x, k) for k in slots} if slots is not None
-              else getattr(x, "__dict__", None))
-    if fields is None:
-        raise ValueError(f"no content description of {type(x).__qualname__}")
-    return type(x).__qualname__ + _static_text(fields)
+        return name + "{" + ",".join(f"{_static_text(k)}:{_static_text(x[k])}"
+                                     for k in sorted(x, key=repr)) + "}"
+    if dataclasses.is_dataclass(x):
+        return name + _static_text({f.name: getattr(x, f.name) for f in dataclasses.fields(x)})
+    slots = [s for c in type(x).__mro__ for s in _slot_names(c)]
+    if slots and not hasattr(x, "__dict__"):
+        return name + _static_text({s: getattr(x, s) for s in slots if hasattr(x, s)})
+    raise ValueError(f"no content description of a {name}")
+
+
+def _slot_names(cls) -> tuple[str, ...]:
+    slots = cls.__dict__.get("__slots__", ())
+    return (slots,) if isinstance(slots, str) else tuple(slots)
 
 
 def describe(treedef) -> str:
@@ -137,7 +179,7 @@ def describe(treedef) -> str:
     return f"{typ.__module__}.{typ.__qualname__}[{_static_text(aux)}]({kids})"
 
 
-def key(name: str, static, leaves, treedef) -> str | None:
+def key(name: str, static, leaves, treedef) -> Optional[str]:
     """The entry's key (module doc), or None when ``static`` or the tree structure has no
     complete description (:func:`describe`)."""
     text = repr(static)
@@ -148,34 +190,40 @@ def key(name: str, static, leaves, treedef) -> str | None:
     except ValueError:
         return None
     dev = jax.devices()[0]
-    parts = [name, code_digest(), _versions(), jax.default_backend(), dev.device_kind,
-             str(jax.config.jax_enable_x64), str(jax.config.jax_default_matmul_precision),
-             text, tree,
-             ";".join(str(jax.typeof(x)) for x in leaves)]
+    flags = ",".join(f"{f}={getattr(jax.config, f, None)}" for f in JAX_FLAGS)
+    parts = [name, code_digest(), _versions(), jax.default_backend(), dev.device_kind, flags,
+             text, tree, ";".join(str(jax.typeof(x)) for x in leaves)]
     return name + "-" + hashlib.sha256("\n".join(parts).encode()).hexdigest()[:40]
 
 
 def _usable() -> bool:
-    """On, and one process on one device: the exported program has no shardings to honour."""
-    return _dir is not None and jax.process_count() == 1 and jax.device_count() == 1
+    """On, jit on, jax.export's serializer installed, one process on one device (the
+    exported program has no shardings to honour)."""
+    return (_dir is not None and not jax.config.jax_disable_jit
+            and importlib.util.find_spec("flatbuffers") is not None
+            and jax.process_count() == 1 and jax.device_count() == 1)
 
 
-def _load(file: Path) -> Program | None:
-    """The program stored in ``file``, or None (missing or damaged: a damaged file is removed)."""
+def _program_of(exported, out_tree) -> Program:
+    return Program(exported, out_tree, jax.jit(exported.call), None)
+
+
+def _load(file: Path) -> Optional[Program]:
+    """The program stored in ``file``; None where it is missing or unreadable (a damaged
+    entry, or one from an incompatible JAX: the fresh trace overwrites it)."""
     if not file.is_file():
         return None
     try:
         blob, out_tree = pickle.loads(file.read_bytes())
-        exported = jax_export.deserialize(bytearray(blob))
-    except Exception:                               # damaged or from an incompatible writer
-        file.unlink(missing_ok=True)
+        return _program_of(jax_export.deserialize(bytearray(blob)), out_tree)
+    except Exception:
         return None
-    return Program(exported, out_tree, jax.jit(exported.call))
 
 
-def _export(fn: Callable, static, args, treedef) -> tuple[Any, Any, bytes]:
+def _export(fn: Callable, static, args) -> tuple[Any, Any, bytes]:
     """Trace and lower ``fn(*args, static=static)`` on flat leaves: (Exported, output tree,
-    the entry's bytes).  Serializing needs the ``flatbuffers`` package (a dependency)."""
+    the entry's bytes)."""
+    treedef = jax.tree.structure(args)
     box = {}
 
     def flat(*leaves):
@@ -202,67 +250,64 @@ def _store(file: Path, blob: bytes) -> None:
             Path(tmp).unlink(missing_ok=True)
 
 
-def _program(fn: Callable, static, args, k: str) -> Program | None:
-    """The program of key ``k``: from memory, from disk, or traced now and stored."""
+def _program(fn: Callable, static, args, k: str) -> Optional[Program]:
+    """The program of key ``k``: from memory, from disk, or traced now and stored; None when
+    jax.export refuses it (marked on disk, so later runs do not try again)."""
     if k in _loaded:
         return _loaded[k]
+    if (_dir / (k + REFUSED)).exists():
+        return None
     file = _dir / (k + SUFFIX)
     prog = _load(file)
     if prog is None:
         try:
-            exported, out_tree, blob = _export(fn, static, args, jax.tree.structure(args))
-        except Exception:          # not exportable (module doc): the plain jitted call
-            _unexportable.add(k)
+            exported, out_tree, blob = _export(fn, static, args)
+        except Exception:     # refused (module doc); a real error recurs in the plain call
+            _store(_dir / (k + REFUSED), b"")
             return None
         _store(file, blob)
-        prog = Program(exported, out_tree, jax.jit(exported.call))
+        prog = _program_of(exported, out_tree)
     _loaded[k] = prog
     return prog
 
 
-def _lookup(fn: Callable, static, args) -> tuple[str | None, Program | None]:
-    """(key, program) of ``fn(*args, static=static)``; (None, None) where the cache does not
-    serve it (off, several devices, incomplete settings, not exportable)."""
+def _lookup(fn: Callable, static, args) -> Optional[tuple[str, Program]]:
+    """(key, program) of ``fn(*args, static=static)``, or None where the cache does not serve
+    it (module doc)."""
+    if not _usable():
+        return None
     leaves, treedef = jax.tree.flatten(args)
-    k = key(fn.__name__, static, leaves, treedef) if _usable() else None
-    if k is None or k in _unexportable:
-        return None, None
-    return k, _program(fn, static, args, k)
+    k = key(fn.__name__, static, leaves, treedef)
+    prog = None if k is None else _program(fn, static, args, k)
+    return None if prog is None else (k, prog)
 
 
 def call(fn: Callable, static, *args):
     """``fn(*args, static=static)`` — ``fn`` a jitted function of the arrays ``args`` and a
-    hashable static ``static`` — through the cache where it is on and usable (module doc)."""
-    _, prog = _lookup(fn, static, args)
-    if prog is None:
+    hashable static ``static`` — through the cache where it serves the call (module doc)."""
+    found = _lookup(fn, static, args)
+    if found is None:
         return fn(*args, static=static)
-    return jax.tree.unflatten(prog.out_tree, prog.run(*jax.tree.leaves(args)))
+    prog = found[1]
+    return jax.tree.unflatten(prog.out_tree, prog.run(jax.tree.leaves(args)))
 
 
 def out_shapes(fn: Callable, static, *args):
     """``fn(*args, static=static)``'s output as :class:`jax.ShapeDtypeStruct` leaves, from
     its stored or newly traced program, without compiling it; None where the cache does
     not serve the call.  ``args`` may hold ShapeDtypeStructs."""
-    _, prog = _lookup(fn, static, args)
-    if prog is None:
+    found = _lookup(fn, static, args)
+    if found is None:
         return None
+    prog = found[1]
     return jax.tree.unflatten(prog.out_tree, [jax.ShapeDtypeStruct(a.shape, a.dtype)
                                               for a in prog.exported.out_avals])
 
 
-def _ahead(prog: Program) -> Callable:
-    """Compile ``prog`` for its argument types now; the result runs flat leaves (the jitted
-    call where a caller's argument types differ from the exported ones, e.g. weak types)."""
+def _compile(prog: Program):
+    """``prog``'s executable for its exported argument types."""
     avals = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in prog.exported.in_avals]
-    compiled = jax.jit(prog.exported.call).lower(*avals).compile()
-    jitted = prog.run
-
-    def run(*leaves):
-        try:
-            return compiled(*leaves)
-        except TypeError:          # argument types differ from the compiled ones
-            return jitted(*leaves)
-    return run
+    return prog.jitted.lower(*avals).compile()
 
 
 def compile_together(calls) -> None:
@@ -272,13 +317,13 @@ def compile_together(calls) -> None:
     the sum.  Calls the cache does not serve are left to their first use."""
     todo = {}
     for fn, static, args in calls:
-        k, prog = _lookup(fn, static, args)
-        if prog is not None and isinstance(prog.run, jax.stages.Wrapped):
-            todo[k] = prog
+        found = _lookup(fn, static, args)
+        if found is not None and found[1].compiled is None:
+            todo[found[0]] = found[1]
     if not todo:
         return
     from concurrent.futures import ThreadPoolExecutor
     with ThreadPoolExecutor(len(todo)) as pool:
-        runs = dict(zip(todo, pool.map(_ahead, todo.values())))
-    for k, run in runs.items():
-        _loaded[k] = todo[k]._replace(run=run)
+        done = dict(zip(todo, pool.map(_compile, todo.values())))
+    for k, compiled in done.items():
+        _loaded[k] = todo[k]._replace(compiled=compiled)

@@ -36,3 +36,13 @@ def _private_compile_cache(tmp_path_factory):
         os.environ.pop("HLIP_JAX_CACHE_DIR", None)
     else:
         os.environ["HLIP_JAX_CACHE_DIR"] = old
+
+
+@pytest.fixture(autouse=True)
+def _trace_cache_off_after_each_test():
+    """The traced-program cache (hlip_jax.trace_cache) ends every test off and empty: a test
+    that runs the CLI in-process turns it on (with the compilation cache), and the tests
+    after it would otherwise take its path or not depending on their order."""
+    yield
+    from hlip_jax import trace_cache
+    trace_cache.disable()

@@ -18,17 +18,10 @@ CONFIGS = [ScenarioConfig(duration=2.0, seed=i, path=PathConfig(shape=s, params=
 
 @pytest.fixture
 def cache(tmp_path):
-    """The cache on in a fresh directory with nothing loaded; the process's state restored."""
-    old = (trace_cache.directory(), dict(trace_cache._loaded), set(trace_cache._unexportable))
-    trace_cache._loaded.clear()
-    trace_cache._unexportable.clear()
+    """The cache on in a fresh directory with nothing loaded (conftest turns it off after)."""
+    trace_cache.disable()
     trace_cache.enable(tmp_path)
     yield tmp_path
-    trace_cache.enable(old[0])
-    trace_cache._loaded.clear()
-    trace_cache._loaded.update(old[1])
-    trace_cache._unexportable.clear()
-    trace_cache._unexportable.update(old[2])
 
 
 def _run(progress: bool, max_iter=None):
@@ -41,7 +34,7 @@ def _run(progress: bool, max_iter=None):
 
 def _plain(progress: bool, **kw):
     d = trace_cache.directory()
-    trace_cache.enable(None)
+    trace_cache.disable()
     try:
         return _run(progress, **kw)
     finally:
@@ -103,49 +96,100 @@ def test_a_damaged_entry_is_traced_again(cache, monkeypatch):
 
 
 def test_a_loop_that_cannot_be_exported_runs_plain(cache, monkeypatch):
+    calls = _count_traces(monkeypatch)
+
     def refuse(*a, **kw):
         raise ValueError("no stable ABI")
     monkeypatch.setattr(trace_cache.jax_export, "export", refuse)
     out = _run(False)
-    assert list(cache.iterdir()) == []
-    assert len(trace_cache._unexportable) == 1
+    assert [p.suffix for p in cache.iterdir()] == [trace_cache.REFUSED]   # marked, not stored
+    assert trace_cache.loaded("_run_whole") == 0
     _assert_equal(out, _plain(False))
+    trace_cache._loaded.clear()                                            # a later process
+    _run(False)
+    assert len(calls) == 1                                                 # does not try again
 
 
-def test_key_covers_code_and_refuses_incomplete_settings(cache, monkeypatch):
+def test_key_covers_code_settings_and_flags(monkeypatch):
     import jax
-    import numpy as np_
-    leaves, tree = jax.tree.flatten((np_.zeros(3),))
+    leaves, tree = jax.tree.flatten((np.zeros(3),))
     k = trace_cache.key("f", ("a", 1), leaves, tree)
     assert k.startswith("f-")
     assert trace_cache.key("f", ("a", 2), leaves, tree) != k
-    f32 = jax.tree.leaves((np_.zeros(3, np_.float32),))
+    f32 = jax.tree.leaves((np.zeros(3, np.float32),))
     assert trace_cache.key("f", ("a", 1), f32, tree) != k
-    assert trace_cache.key("f", (np_.zeros(5000),), leaves, tree) is None   # repr truncated
+    assert trace_cache.key("f", (np.zeros(5000),), leaves, tree) is None   # repr truncated
     assert trace_cache.key("f", (object(),), leaves, tree) is None          # repr has an address
+    with jax.threefry_partitionable(not jax.config.jax_threefry_partitionable):
+        assert trace_cache.key("f", ("a", 1), leaves, tree) != k      # other random numbers
+    assert trace_cache.key("f", ("a", 1), leaves, tree) == k
     monkeypatch.setattr(trace_cache, "code_digest", lambda: "edited")
     assert trace_cache.key("f", ("a", 1), leaves, tree) != k
+
+
+class _Slotted:
+    __slots__ = ("array", "tag")
+
+    def __init__(self, array, tag):
+        self.array, self.tag = array, tag
+
+
+def _node(aux):
+    """A tree whose one custom node carries ``aux`` as static data."""
+    import jax
+
+    class Node:
+        pass
+    jax.tree_util.register_pytree_node(Node, lambda n: ((), aux), lambda a, c: Node())
+    return jax.tree.structure(Node())
+
+
+def test_static_data_is_described_by_its_contents():
+    """Equal contents give one text (in another object, as in another process); different
+    contents give another; functions and unknown objects are refused."""
+    d = trace_cache.describe
+    a = d(_node((_Slotted(np.arange(4), "x"), 3)))
+    assert a == d(_node((_Slotted(np.arange(4).copy(), "x"), 3)))
+    assert " at 0x" not in a
+    assert a != d(_node((_Slotted(np.arange(4) + 1, "x"), 3)))
+    assert a != d(_node((_Slotted(np.arange(4), "y"), 3)))
+    assert d(_node((0.1234567891,))) != d(_node((0.1234567892,)))
+    for bad in (lambda: 0, object()):
+        with pytest.raises(ValueError):
+            d(_node((bad,)))
+
+
+def test_code_digest_changes_with_the_package_source(tmp_path, monkeypatch):
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "sub" / "a.py").write_text("x = 1\n")
+    monkeypatch.setattr(trace_cache, "__file__", str(pkg / "trace_cache.py"))
+    trace_cache.code_digest.cache_clear()
+    try:
+        first = trace_cache.code_digest()
+        (pkg / "sub" / "a.py").write_text("x = 2\n")
+        trace_cache.code_digest.cache_clear()
+        assert trace_cache.code_digest() != first
+    finally:
+        trace_cache.code_digest.cache_clear()
 
 
 def test_compile_cache_turns_the_trace_cache_on_beside_it(tmp_path, monkeypatch):
     import jax
     monkeypatch.setattr(jax.config, "update", lambda *a: None)   # keep this process's XLA cache
-    old = trace_cache.directory()
-    try:
-        compile_cache.enable(tmp_path)
-        assert trace_cache.directory() == tmp_path / compile_cache.TRACES
-    finally:
-        trace_cache.enable(old)
+    compile_cache.enable(tmp_path)
+    assert trace_cache.directory() == tmp_path / compile_cache.TRACES
 
 
 def test_segments_compile_ahead_with_the_keys_the_loop_uses(cache, monkeypatch):
     """The start and segment programs are compiled together before the loop, under the keys
-    the loop's calls then find (one trace each, no second entry), with the same numbers."""
+    the loop's calls then find (one trace each, no second entry), and the loop runs those
+    executables (their jitted fallbacks never compile), with the same numbers."""
     calls = _count_traces(monkeypatch)
-    ahead = []
-    inner = trace_cache._ahead
-    monkeypatch.setattr(trace_cache, "_ahead", lambda p: ahead.append(1) or inner(p))
     out = _run(True)
-    assert len(calls) == 2 and len(ahead) == 2
+    assert len(calls) == 2
     assert len(list(cache.glob("*" + trace_cache.SUFFIX))) == 2
+    progs = list(trace_cache._loaded.values())
+    assert len(progs) == 2 and all(p.compiled is not None for p in progs)
+    assert all(p.jitted._cache_size() == 0 for p in progs)
     _assert_equal(out, _plain(True))
