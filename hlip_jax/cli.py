@@ -22,6 +22,8 @@ with a one-line message and no traceback; 130 interrupted (Ctrl-C) and 143 termi
 
 ``run`` and ``ticks`` keep compiled programs on disk (:mod:`hlip_jax.compile_cache`)
 unless ``--no-compile-cache`` is given, so a rerun starts simulating without a compile.
+On a GPU every command runs XLA's deterministic operations, so a rerun repeats bit for bit
+(:mod:`hlip_jax.xla_flags`; ``XLA_FLAGS=--xla_gpu_deterministic_ops=false`` turns them off).
 
 ``HLIP_SWEEP_SIMULATE=module:function`` replaces the closed loop
 (:func:`hlip_jax.rollout.simulate`) by another function of the same contract — used by tests
@@ -39,7 +41,7 @@ import signal
 import sys
 from pathlib import Path
 
-from hlip_jax import plants, resources
+from hlip_jax import plants, resources, xla_flags
 
 EXIT_OK, EXIT_INCOMPLETE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
 PROG = "hlip-sweep"
@@ -560,6 +562,7 @@ def main(argv=None) -> int:
     from hlip_jax.sweep import SweepError
 
     args = build_parser().parse_args(argv)
+    xla_flags.apply()        # reproducible GPU runs (before JAX's backend starts)
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
                "bench": cmd_bench, "ticks": cmd_ticks, "coverage": cmd_coverage,
                "s2s": cmd_s2s, "wbox": cmd_wbox}[args.cmd]
