@@ -2,8 +2,10 @@
 stored on disk instead of tracing it, and gets the numbers of the plain jitted run.
 
 Equality is bit for bit (NaN where the plain run has NaN): the stored program is the same
-StableHLO the jitted call lowers to, called through a wrapper that XLA inlines, so any
-difference would be a different program, not round-off.
+StableHLO the jitted call lowers to, called through a wrapper that XLA inlines, and the CPU
+backend's operations are deterministic, so any difference would be a different program, not
+round-off.  (On a GPU, repeatability also needs XLA's deterministic operations:
+:mod:`hlip_jax.xla_flags`.)
 """
 
 import numpy as np
