@@ -105,12 +105,18 @@ def _anchor(log: dict, s: int) -> np.ndarray:
     return np.asarray(log["anchor"][s], np.float64)
 
 
+def error_system(log: dict, s: int):
+    """(A, B, K, state slice, A_cl, β): :func:`error_model` and :func:`closed_loop` of
+    scenario ``s`` from one evaluation of the error model."""
+    from hlip_jax import invariant as inv
+    A, B, K, sl = error_model(log, s)
+    return (A, B, K, sl, *inv.closed_loop(A, B, K, _anchor(log, s)[sl]))
+
+
 def closed_loop(log: dict, s: int):
     """(A_cl (2, n, n), β) of scenario ``s``'s error system e⁺ = A_cl e + w + β B δu on the
     state :func:`error_model` picks (:func:`hlip_jax.invariant.closed_loop`)."""
-    from hlip_jax import invariant as inv
-    A, B, K, sl = error_model(log, s)
-    return inv.closed_loop(A, B, K, _anchor(log, s)[sl])
+    return error_system(log, s)[4:]
 
 
 #: W boxes narrower than this half-width in an axis are widened to it [m or m/s]: a state the
@@ -142,8 +148,7 @@ def error_samples(log: dict, s: int, mask: np.ndarray, du: np.ndarray):
     e_{k+1} = A_cl e_k + w_k, and the mask of counted w (both ends in ``mask``); ``du``
     (K, 2): the foot-placement errors (:func:`_placement`)."""
     from hlip_jax import invariant as inv
-    A, B, Kg, sl = error_model(log, s)
-    Acl, beta = inv.closed_loop(A, B, Kg, _anchor(log, s)[sl])
+    A, B, Kg, sl, Acl, beta = error_system(log, s)
     x = np.asarray(log["x_robot"][s], np.float64)[:, :, sl]     # (K, 2, n)
     u = np.asarray(log["u_robot"][s], np.float64)
     e = np.asarray(log["e"][s], np.float64)[:, :, sl]

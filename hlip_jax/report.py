@@ -164,8 +164,8 @@ def fig_steps(log, path: Path, title: str) -> None:
 def _plane_mats(log, s):
     """What runs must share to pool their errors: the error model's A, B, K and the
     closed-loop matrix (which the planner's ``mpc.mode`` changes)."""
-    A, B, K, _ = metrics.error_model(log, s)
-    return A, B, K, metrics.closed_loop(log, s)[0]
+    A, B, K, _, Acl, _ = metrics.error_system(log, s)
+    return A, B, K, Acl
 
 
 def invariant_analysis(log, members: list[int]):
