@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 from typing import NamedTuple, Optional, Sequence
 
 import jax
@@ -452,8 +453,9 @@ def compiled_loops() -> int:
     """How many compiled closed-loop programs this process holds (whole runs and segments,
     traced here or loaded by :mod:`hlip_jax.trace_cache`): a sweep whose chunks share their
     shapes adds one."""
-    return (_run_whole._cache_size() + _segment_batch._cache_size()
-            + trace_cache.loaded(_run_whole.__name__) + trace_cache.loaded(_segment_batch.__name__))
+    loops = [_run_whole, _segment_batch]
+    loops += [p for whole, _, segment in _per_mesh.values() for p in (whole, segment)]
+    return sum(f._cache_size() + trace_cache.loaded(f.__name__) for f in loops)
 
 
 def segment_length(n_steps: int) -> int:
@@ -461,16 +463,97 @@ def segment_length(n_steps: int) -> int:
     return max(1, math.ceil(n_steps / 20))
 
 
-def _compile_ahead(batch: Scenario, static: Static, L: int) -> None:
+def _compile_ahead(start, segment, batch: Scenario, static: Static, L: int) -> None:
     """Where the trace cache serves the loop (:mod:`hlip_jax.trace_cache`): trace or load the
-    start and segment programs (the segment's carry shapes from the start's program) and
-    compile both at once."""
-    shapes = trace_cache.out_shapes(_start_batch, static, batch)
+    ``start`` and ``segment`` programs (the segment's carry shapes from the start's program)
+    and compile both at once."""
+    shapes = trace_cache.out_shapes(start, static, batch)
     if shapes is None:
         return
-    ks = jax.ShapeDtypeStruct((L,), jax.dtypes.canonicalize_dtype(jnp.int_))   # jnp.arange's
-    trace_cache.compile_together([(_start_batch, static, (batch,)),
-                                  (_segment_batch, static, (batch, shapes[0], ks))])
+    carry, ks = shapes[0], jax.ShapeDtypeStruct((L,), jax.dtypes.canonicalize_dtype(jnp.int_))
+    mesh = _mesh_of(batch)
+    if mesh is not None:      # the carry split as the batch is, the step indices whole
+        split = jax.tree.leaves(batch)[0].sharding
+        carry = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=split),
+                             carry)
+        ks = jax.ShapeDtypeStruct(ks.shape, ks.dtype, sharding=jax.sharding.NamedSharding(
+            mesh, jax.sharding.PartitionSpec()))
+    trace_cache.compile_together([(start, static, (batch,)),
+                                  (segment, static, (batch, carry, ks))])
+
+
+def _mesh_of(batch) -> Optional[jax.sharding.Mesh]:
+    """The mesh a batch is split over when it spans several devices (:func:`place`), else
+    None (a batch on one device)."""
+    sharding = getattr(jax.tree.leaves(batch)[0], "sharding", None)
+    if isinstance(sharding, jax.sharding.NamedSharding) and sharding.mesh.size > 1:
+        return sharding.mesh
+    return None
+
+
+def _split_as(tree, batch):
+    """``tree`` (per-scenario arrays) split over the devices as ``batch`` is: XLA returns a
+    program's empty outputs whole on every device, and the next segment's executable,
+    compiled ahead, expects every carry leaf split (no copy where it already is)."""
+    if _mesh_of(batch) is None:
+        return tree
+    return jax.device_put(tree, jax.tree.leaves(batch)[0].sharding)
+
+
+def _per_device(fn, mesh, replicated: int = 0):
+    """``fn`` (a jitted ``(batch, ..., static=)`` closed-loop program) run by every device of
+    ``mesh`` on its own scenarios: ``shard_map`` over the scenario axis, the last
+    ``replicated`` arguments given whole to every device.  Scenarios never communicate, so
+    the devices never do either: left to XLA's partitioner, the tick loop's stopping test
+    (any robot of the batch still in its step) became a cross-device reduction every tick,
+    83× slower in a toy loop on two CPU devices (BENCHMARKS.md, "CPU cores as devices")."""
+    from jax.sharding import PartitionSpec
+    split = PartitionSpec(mesh.axis_names[0])
+
+    def program(*args, static):
+        specs = (split,) * (len(args) - replicated) + (PartitionSpec(),) * replicated
+        body = functools.partial(fn.__wrapped__, static=static)
+        return jax.shard_map(body, mesh=mesh, in_specs=specs, out_specs=split,
+                             check_vma=False)(*args)
+
+    program.__name__ = f"{fn.__name__}_on_{mesh.size}_{mesh.devices.flat[0].platform}"
+    return jax.jit(program, static_argnames=("static",))
+
+
+def _check_cpu_pool(mesh: jax.sharding.Mesh) -> None:
+    """Refuse a batch split over as many CPU devices of this process as XLA's CPU thread pool
+    has threads under jaxlib < 0.11, whose batched LAPACK kernels then wait forever for a free thread
+    (:mod:`hlip_jax.xla_flags`).  The pool has ``PJRT_NPROC`` (or ``NPROC``) threads, else
+    one per usable core."""
+    from hlip_jax import xla_flags
+    if mesh.devices.flat[0].platform != "cpu" or _jaxlib_version() >= (0, 11):
+        return
+    pool = next((int(os.environ[v]) for v in xla_flags.POOL_VARS
+                 if os.environ.get(v, "").isdigit()), xla_flags.usable_cores())
+    here = sum(d.process_index == jax.process_index() for d in mesh.devices.flat)
+    if here >= pool:
+        raise RuntimeError(
+            f"the batch is split over {here} CPU devices of this process, but XLA's CPU thread "
+            f"pool has {pool} threads: jaxlib {jax.lib.__version__} can deadlock unless it has "
+            f"more (set PJRT_NPROC={2 * here} before JAX starts, as hlip-sweep does)")
+
+
+def _jaxlib_version() -> tuple[int, ...]:
+    return tuple(int(p) for p in jax.lib.__version__.split(".")[:2] if p.isdigit())
+
+
+_per_mesh: dict = {}     # mesh -> its (whole run, start, segment) programs
+
+
+def _programs(mesh: Optional[jax.sharding.Mesh]):
+    """(whole run, start, segment) programs for a batch on ``mesh`` (None: one device)."""
+    if mesh is None:
+        return _run_whole, _start_batch, _segment_batch
+    if mesh not in _per_mesh:
+        _check_cpu_pool(mesh)
+        _per_mesh[mesh] = (_per_device(_run_whole, mesh), _per_device(_start_batch, mesh),
+                           _per_device(_segment_batch, mesh, replicated=1))
+    return _per_mesh[mesh]
 
 
 def run(batch: Scenario, static: Static):
@@ -483,15 +566,16 @@ def run(batch: Scenario, static: Static):
     compiled loop, so it stays cacheable on disk (:mod:`hlip_jax.compile_cache`; the traced
     programs too, :mod:`hlip_jax.trace_cache`).  Both give the same numbers: a segment
     boundary only splits the scan."""
+    whole, start, segment = _programs(_mesh_of(batch))
     if not static.progress:
-        return trace_cache.call(_run_whole, static, batch)
+        return trace_cache.call(whole, static, batch)
     K, L = static.n_steps, segment_length(static.n_steps)
-    _compile_ahead(batch, static, L)
-    carry, ok0 = trace_cache.call(_start_batch, static, batch)
+    _compile_ahead(start, segment, batch, static, L)
+    carry, ok0 = trace_cache.call(start, static, batch)
     outs = []
     for k0 in range(0, K, L):
-        carry, out = trace_cache.call(_segment_batch, static, batch, carry,
-                                      jnp.arange(k0, k0 + L))
+        carry = _split_as(carry, batch)
+        carry, out = trace_cache.call(segment, static, batch, carry, jnp.arange(k0, k0 + L))
         outs.append(out)
         jax.block_until_ready(carry)
         progress.step_done(min(k0 + L, K) - 1, K)
@@ -502,7 +586,7 @@ def run(batch: Scenario, static: Static):
 def scenario_sharding(devices=None):
     """Sharding that splits the leading (scenario) axis over ``devices`` (default: every
     device of every process, ``jax.devices()``): a 1-D ``Mesh`` with axis "scenarios".
-    Scenarios never communicate, so XLA partitions the vmapped loop without collectives."""
+    :func:`run` gives each device its own scenarios' loop (:func:`_per_device`)."""
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
     devices = jax.devices() if devices is None else list(devices)
     return NamedSharding(Mesh(np.asarray(devices), ("scenarios",)), PartitionSpec("scenarios"))
@@ -553,8 +637,9 @@ def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to
     ``pad_to`` pads the batch (repeating the last scenario) and ``shapes`` (:func:`shapes_of`
     the whole sweep) fixes the array sizes, so chunks of a sweep share one compile; padding
     is dropped from the Log.  With several devices (``devices``, default all of
-    ``jax.devices()``) the batch is padded to a multiple of their number and sharded over
-    them along the scenario axis (:func:`scenario_sharding`).  While someone listens
+    ``jax.devices()``: GPUs, or the CPU's cores as :mod:`hlip_jax.xla_flags` sets them up)
+    the batch is padded to a multiple of their number and split over them along the scenario
+    axis (:func:`scenario_sharding`), each running its own scenarios' loop.  While someone listens
     (:func:`hlip_jax.progress.listening`) every finished walking step is reported."""
     configs = list(configs)
     S = len(configs)

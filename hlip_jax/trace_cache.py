@@ -20,9 +20,11 @@ So editing the code, upgrading a library or changing a setting makes a new entry
 data that cannot be described by its contents alone (functions, objects of unknown types,
 truncated ``repr`` s, object addresses) keeps the call out of the cache.  Programs that cannot
 be exported (foreign calls without a stable ABI, such as MJX's Warp physics) are marked so
-on disk and take the ordinary jitted call, as do runs over several devices or processes,
-runs under ``jax.disable_jit`` and installs without ``flatbuffers`` (jax.export's
-serializer).  The directory is ``<compilation cache>/traces``; the CLI's
+on disk and take the ordinary jitted call, as do runs over several processes, runs under
+``jax.disable_jit`` and installs without ``flatbuffers`` (jax.export's serializer).  A
+program run by several devices of this process (:func:`hlip_jax.rollout.run`'s per-device
+loops: their name says how many) is stored with its device split and compiled for the
+arguments' placement.  The directory is ``<compilation cache>/traces``; the CLI's
 ``--no-compile-cache`` turns both caches off.  Entries are Python pickles: like JAX's own
 compilation cache, the directory must be writable by its user only.
 """
@@ -197,11 +199,11 @@ def key(name: str, static, leaves, treedef) -> Optional[str]:
 
 
 def _usable() -> bool:
-    """On, jit on, jax.export's serializer installed, one process on one device (the
-    exported program has no shardings to honour)."""
+    """On, jit on, jax.export's serializer installed, one process (a program over several
+    processes' devices is not exported)."""
     return (_dir is not None and not jax.config.jax_disable_jit
             and importlib.util.find_spec("flatbuffers") is not None
-            and jax.process_count() == 1 and jax.device_count() == 1)
+            and jax.process_count() == 1)
 
 
 def _program_of(exported, out_tree) -> Program:
@@ -304,9 +306,11 @@ def out_shapes(fn: Callable, static, *args):
                                               for a in prog.exported.out_avals])
 
 
-def _compile(prog: Program):
-    """``prog``'s executable for its exported argument types."""
-    avals = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in prog.exported.in_avals]
+def _compile(prog: Program, args):
+    """``prog``'s executable for its exported argument types, placed as ``args`` are (their
+    shardings: one device, or a program run by several devices)."""
+    avals = [jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=getattr(x, "sharding", None))
+             for a, x in zip(prog.exported.in_avals, jax.tree.leaves(args))]
     return prog.jitted.lower(*avals).compile()
 
 
@@ -319,11 +323,11 @@ def compile_together(calls) -> None:
     for fn, static, args in calls:
         found = _lookup(fn, static, args)
         if found is not None and found[1].compiled is None:
-            todo[found[0]] = found[1]
+            todo[found[0]] = (found[1], args)
     if not todo:
         return
     from concurrent.futures import ThreadPoolExecutor
     with ThreadPoolExecutor(len(todo)) as pool:
-        done = dict(zip(todo, pool.map(_compile, todo.values())))
+        done = dict(zip(todo, pool.map(lambda pa: _compile(*pa), todo.values())))
     for k, compiled in done.items():
-        _loaded[k] = todo[k]._replace(compiled=compiled)
+        _loaded[k] = todo[k][0]._replace(compiled=compiled)

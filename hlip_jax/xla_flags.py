@@ -1,14 +1,25 @@
-"""Run-to-run reproducible sweeps on a GPU: XLA's deterministic GPU operations, on by default.
+"""XLA settings the CLI makes before JAX starts: reproducible GPU runs, every CPU core at work.
 
-On a GPU, XLA implements scatters and some reductions with atomic additions whose order
-varies from run to run.  The closed loop is chaotic, so those
+**Deterministic GPU operations.** On a GPU, XLA implements scatters and some reductions with
+atomic additions whose order varies from run to run.  The closed loop is chaotic, so those
 last-bit differences grow: runs of the same five paper scenarios on one H200 differed by
 up to 10 cm in the COM after ten steps (BENCHMARKS.md, "GPU runs repeat bit for bit").
 ``--xla_gpu_deterministic_ops=true`` makes XLA use order-fixed implementations; with it the two
-runs were equal bit for bit, at the same speed for that batch.  The CLI adds the flag to
-``XLA_FLAGS`` before JAX starts its backend; a user who sets the flag in ``XLA_FLAGS``
-(``=true`` or ``=false``) keeps that value.  The CPU backend ignores it (its operations are
-deterministic).
+runs were equal bit for bit, at the same speed for that batch.  The CPU backend ignores it
+(its operations are deterministic).
+
+**One CPU device per core.** XLA runs the closed loop's small batched operations on one
+core: on the 2-core machine a sweep ran faster pinned to one core than free on two.  With
+``--xla_force_host_platform_device_count=N`` (N = the cores this process may use) the CPU
+backend has N devices and a sweep's scenarios are split over them, each device running its
+share of the loop on its own core (:func:`hlip_jax.rollout.run`; 1.3–1.4× on 2 cores,
+BENCHMARKS.md, "CPU cores as devices").  jaxlib 0.10's LAPACK kernels wait on XLA's CPU
+thread pool for their batch's tasks; with every pool thread busy running a device's program
+none is left for those tasks and the process hangs, so the pool is given 2N threads
+(``PJRT_NPROC``; jaxlib 0.11 no longer splits the batch).
+
+Each setting is added only where the user's environment does not already choose it
+(``XLA_FLAGS`` naming the flag, ``PJRT_NPROC`` or ``NPROC`` set).
 """
 
 from __future__ import annotations
@@ -17,16 +28,52 @@ import os
 from typing import MutableMapping
 
 FLAG = "--xla_gpu_deterministic_ops"
+DEVICES_FLAG = "--xla_force_host_platform_device_count"
+POOL_VARS = ("PJRT_NPROC", "NPROC")     # read by the CPU client for its thread pool's size
+
+
+def _sets(flags: str, flag: str) -> bool:
+    return any(f.split("=", 1)[0] == flag for f in flags.split())
+
+
+def with_flag(flags: str, flag: str, value: str) -> str:
+    """``flags`` (an XLA_FLAGS value) with ``flag=value`` appended, unless it sets ``flag``."""
+    if _sets(flags, flag):
+        return flags
+    return f"{flags} {flag}={value}".strip()
 
 
 def with_deterministic_ops(flags: str) -> str:
-    """``flags`` (an XLA_FLAGS value) with ``FLAG=true`` appended, unless it already sets FLAG."""
-    if any(f.split("=", 1)[0] == FLAG for f in flags.split()):
-        return flags
-    return f"{flags} {FLAG}=true".strip()
+    """``flags`` with ``FLAG=true`` appended, unless it already sets FLAG."""
+    return with_flag(flags, FLAG, "true")
 
 
-def apply(environ: MutableMapping[str, str] = os.environ) -> None:
-    """Set ``environ["XLA_FLAGS"]`` as :func:`with_deterministic_ops` says (call before the
-    first JAX computation: XLA reads the variable when the backend starts)."""
-    environ["XLA_FLAGS"] = with_deterministic_ops(environ.get("XLA_FLAGS", ""))
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the OS tells it)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:           # not on Linux
+        return os.cpu_count() or 1
+
+
+def cpu_devices(flags: str) -> int:
+    """The CPU devices ``flags`` ask for (1 where they do not set :data:`DEVICES_FLAG`)."""
+    for f in flags.split():
+        name, _, value = f.partition("=")
+        if name == DEVICES_FLAG and value.strip().isdigit():
+            return max(1, int(value))
+    return 1
+
+
+def apply(environ: MutableMapping[str, str] = os.environ, cores: int | None = None) -> None:
+    """Set ``environ`` as the module doc says (call before the first JAX computation: XLA
+    reads the variables when the backend starts).  ``cores`` defaults to
+    :func:`usable_cores`."""
+    cores = usable_cores() if cores is None else cores
+    flags = with_deterministic_ops(environ.get("XLA_FLAGS", ""))
+    if cores > 1:
+        flags = with_flag(flags, DEVICES_FLAG, str(cores))
+    environ["XLA_FLAGS"] = flags
+    devices = cpu_devices(flags)
+    if devices > 1 and not any(v in environ for v in POOL_VARS):
+        environ[POOL_VARS[0]] = str(2 * max(devices, cores))

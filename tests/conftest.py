@@ -46,3 +46,18 @@ def _trace_cache_off_after_each_test():
     yield
     from hlip_jax import trace_cache
     trace_cache.disable()
+
+
+@pytest.fixture(autouse=True)
+def _xla_environment_restored():
+    """The CLI sets XLA's environment when it starts (hlip_jax.xla_flags); a test that runs
+    it in-process must not hand those settings to the subprocesses of later tests."""
+    import os
+    names = ("XLA_FLAGS", "PJRT_NPROC")
+    old = {n: os.environ.get(n) for n in names}
+    yield
+    for n, v in old.items():
+        if v is None:
+            os.environ.pop(n, None)
+        else:
+            os.environ[n] = v

@@ -29,8 +29,8 @@ TESTS = Path(__file__).resolve().parent
 BROKEN = TESTS / "sweeps_broken"
 
 
-def hs(*args, cwd=None, fake=True, timeout=300):
-    env = dict(os.environ)
+def hs(*args, cwd=None, fake=True, timeout=300, env=None):
+    env = dict(os.environ, **(env or {}))
     env["PYTHONPATH"] = os.pathsep.join([str(TESTS), env.get("PYTHONPATH", "")])
     env["MPLBACKEND"] = "Agg"
     if fake:
@@ -578,20 +578,23 @@ def test_resume_and_overwrite_together(tmp_path, tiny_sweep, capsys, fake_loop):
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_two_process_distributed_run_equals_one_process(tmp_path):
-    """`--distributed` with two processes on this host (one CPU device each, jax.distributed
+    """`--distributed` with two processes on this host (one CPU device each, as the
+    one-process run has: the numbers depend on the scenarios per device; jax.distributed
     through JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES / JAX_PROCESS_ID) writes the same
     chunks and summary as one process (the real H-LIP closed loop, 4 scenarios of 2 s)."""
     import socket
     sw = tmp_path / "dist.toml"
     sw.write_text('[base]\nduration = 2.0\n[[paths]]\nshape = "line"\n[grid.product]\n'
                   '"gain.type" = ["deadbeat", "lqr"]\n"mpc.alpha" = [0.01, 0.1]\n')
-    one = hs("run", sw, "--out", tmp_path / "one", "--no-report", "--quiet", fake=False)
+    one_device = "--xla_force_host_platform_device_count=1"     # not one per core
+    one = hs("run", sw, "--out", tmp_path / "one", "--no-report", "--quiet", fake=False,
+             env={"XLA_FLAGS": one_device})
     assert one.returncode == 0, one.stderr
     with socket.socket() as s:
         s.bind(("localhost", 0))
         port = s.getsockname()[1]
     env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COORDINATOR_ADDRESS=f"localhost:{port}",
-               JAX_NUM_PROCESSES="2", MPLBACKEND="Agg")
+               JAX_NUM_PROCESSES="2", MPLBACKEND="Agg", XLA_FLAGS=one_device)
     env.pop("HLIP_SWEEP_SIMULATE", None)
     cmd = [sys.executable, "-m", "hlip_jax.cli", "run", str(sw), "--out", str(tmp_path / "two"),
            "--no-report", "--quiet", "--distributed"]

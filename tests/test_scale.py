@@ -1,8 +1,8 @@
 """One compile per sweep, and sharding the scenario axis over several devices.
 
 The multi-device test runs in a subprocess with ``--xla_force_host_platform_device_count=4``
-(the flag must be set before JAX starts), so it exercises the same ``NamedSharding`` path a
-multi-GPU machine takes.
+(the flag must be set before JAX starts), so it exercises the per-device loops a multi-GPU
+machine, or the CLI on a multi-core CPU, runs.
 """
 
 import json
@@ -12,6 +12,8 @@ import sys
 import textwrap
 
 
+import jax
+import numpy as np
 import pytest
 
 from hlip_jax import rollout, runner, store, sweep
@@ -53,11 +55,14 @@ def test_one_compile_per_sweep(tmp_path):
 SHARDED = textwrap.dedent("""
     import os, json, sys
     os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=4"
+    os.environ["PJRT_NPROC"] = "8"
     import jax
     jax.config.update("jax_enable_x64", True)
     import numpy as np
-    from hlip_jax import rollout
+    from pathlib import Path
+    from hlip_jax import progress, rollout, trace_cache
     from hlip_jax.config import PathConfig, ScenarioConfig
+    trace_cache.enable(Path(sys.argv[1]))
     cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
             for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("square", 0.4),
                                         ("sinusoid", 0.6), ("cardioid", 0.5)])]
@@ -66,23 +71,74 @@ SHARDED = textwrap.dedent("""
     placed = rollout.place(batch, rollout.scenario_sharding())
     devs = {d.id for d in placed.x0.sharding.device_set}
     multi = rollout.simulate(cfgs)
+    with progress.listening(lambda k, n: None):          # the segmented loop
+        segmented = rollout.simulate(cfgs)
+    whole, start, segment = rollout._programs(placed.x0.sharding.mesh)
     single = rollout.simulate(cfgs, devices=jax.devices()[:1])
     diff = float(np.nanmax(np.abs(multi.x_robot - single.x_robot)))
-    print(json.dumps({"devices": sorted(devs), "diff": diff, "S": int(multi.x_robot.shape[0])}))
+    print(json.dumps({"devices": sorted(devs), "diff": diff, "S": int(multi.x_robot.shape[0]),
+                      "segmented_diff": float(np.nanmax(np.abs(segmented.x_robot
+                                                               - multi.x_robot))),
+                      "traced": whole._cache_size() + segment._cache_size(),
+                      "stored": trace_cache.loaded(whole.__name__)
+                                + trace_cache.loaded(segment.__name__),
+                      "x": np.nan_to_num(multi.x_robot).tolist()}))
 """)
 
 
-@pytest.mark.timeout(600)
-def test_sharded_over_four_devices():
-    """5 scenarios on 4 (host-platform) devices: padded to 8, sharded 2 per device, and the
-    result equals the single-device run to round-off (1e-9: the same float64 program, only
-    partitioned)."""
+def _sharded_run(cache):
     env = dict(os.environ)
     env.pop("XLA_FLAGS", None)
-    out = subprocess.run([sys.executable, "-c", SHARDED], capture_output=True, text=True,
-                         env=env, timeout=580)
+    out = subprocess.run([sys.executable, "-c", SHARDED, str(cache)], capture_output=True,
+                         text=True, env=env, timeout=280)
     assert out.returncode == 0, out.stderr[-3000:]
-    res = json.loads(out.stdout.strip().splitlines()[-1])
-    assert res["devices"] == [0, 1, 2, 3]
-    assert res["S"] == 5
-    assert res["diff"] <= 1e-9
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.timeout(600)
+def test_sharded_over_four_devices(tmp_path):
+    """5 scenarios on 4 (host-platform) devices: padded to 8, 2 per device, each device
+    running its own scenarios' loop.  The result equals the single-device run to round-off
+    (1e-9: the same float64 loop on a batch of 2 instead of 8), so do the whole-run and
+    segmented loops (different programs, the same arithmetic), and a second process runs the programs the trace cache stored
+    (bit for bit the same numbers, nothing traced)."""
+    first = _sharded_run(tmp_path / "traces")
+    assert first["devices"] == [0, 1, 2, 3]
+    assert first["S"] == 5
+    assert first["diff"] <= 1e-9
+    assert first["segmented_diff"] <= 1e-9
+    assert first["stored"] == 2
+    second = _sharded_run(tmp_path / "traces")
+    assert second["traced"] == 0 and second["stored"] == 2
+    assert second["x"] == first["x"]
+
+
+class Other:
+    """A CPU device of another process (for the pool check)."""
+    platform = "cpu"
+    process_index = 1
+
+
+def test_a_cpu_pool_no_larger_than_the_devices_is_refused(monkeypatch):
+    """jaxlib 0.10 with as many CPU devices as pool threads can hang (hlip_jax.xla_flags):
+    the split is refused with the remedy named; one more thread, or jaxlib 0.11, passes."""
+    class Mesh:
+        size = 2
+        devices = np.array([jax.devices("cpu")[0]] * 2)
+
+    class Elsewhere:       # two devices of this process, two of another
+        size = 4
+        devices = np.array([jax.devices("cpu")[0]] * 2 + [Other()] * 2)
+    monkeypatch.setattr(rollout, "_jaxlib_version", lambda: (0, 10))
+    monkeypatch.delenv("NPROC", raising=False)
+    monkeypatch.setenv("PJRT_NPROC", "2")
+    with pytest.raises(RuntimeError, match="PJRT_NPROC=4"):
+        rollout._check_cpu_pool(Mesh())
+    with pytest.raises(RuntimeError, match="2 CPU devices of this process"):
+        rollout._check_cpu_pool(Elsewhere())
+    monkeypatch.setenv("PJRT_NPROC", "3")
+    rollout._check_cpu_pool(Mesh())
+    rollout._check_cpu_pool(Elsewhere())
+    monkeypatch.setenv("PJRT_NPROC", "2")
+    monkeypatch.setattr(rollout, "_jaxlib_version", lambda: (0, 11))
+    rollout._check_cpu_pool(Mesh())

@@ -1,5 +1,5 @@
-"""The CLI's XLA flags (hlip_jax.xla_flags): deterministic GPU operations unless the user's
-XLA_FLAGS already choose."""
+"""The CLI's XLA settings (hlip_jax.xla_flags): deterministic GPU operations and one CPU device
+per core, each unless the user's environment already chooses."""
 
 from hlip_jax import cli, xla_flags
 
@@ -12,16 +12,40 @@ def test_flag_added_unless_the_user_chose():
         assert xla_flags.with_deterministic_ops(chosen) == chosen
     assert xla_flags.with_deterministic_ops(f"{f}_x=1") == f"{f}_x=1 {f}=true"   # another flag
     env = {}
-    xla_flags.apply(env)
-    xla_flags.apply(env)                                     # idempotent
+    xla_flags.apply(env, cores=1)
+    xla_flags.apply(env, cores=1)                            # idempotent
     assert env == {"XLA_FLAGS": f"{f}=true"}
+
+
+def test_one_cpu_device_per_core_with_a_larger_thread_pool():
+    """N cores: N CPU devices and a pool of 2N threads (more threads than devices: jaxlib
+    0.10's LAPACK kernels wait on the pool); a user's own device count or pool size stays."""
+    d = xla_flags.DEVICES_FLAG
+    env = {}
+    xla_flags.apply(env, cores=4)
+    assert f"{d}=4" in env["XLA_FLAGS"].split() and env["PJRT_NPROC"] == "8"
+    xla_flags.apply(env, cores=4)                            # idempotent
+    assert env["XLA_FLAGS"].count(d) == 1
+    env = {"XLA_FLAGS": f"{d}=1"}                            # the user's choice: one device
+    xla_flags.apply(env, cores=4)
+    assert f"{d}=1" in env["XLA_FLAGS"].split() and "PJRT_NPROC" not in env
+    env = {"XLA_FLAGS": f"{d}=6", "NPROC": "3"}              # the user's pool
+    xla_flags.apply(env, cores=2)
+    assert f"{d}=6" in env["XLA_FLAGS"].split() and "PJRT_NPROC" not in env
+    env = {"XLA_FLAGS": f"{d}=3"}                            # more devices than cores
+    xla_flags.apply(env, cores=2)
+    assert env["PJRT_NPROC"] == "6"
+    assert xla_flags.cpu_devices(f"--a=1 {d}=5") == 5 and xla_flags.cpu_devices("") == 1
+    assert xla_flags.usable_cores() >= 1
 
 
 def test_the_cli_sets_it_before_running(monkeypatch, capsys):
     monkeypatch.delenv("XLA_FLAGS", raising=False)
+    monkeypatch.delenv("PJRT_NPROC", raising=False)
     assert cli.main(["list"]) == 0
     import os
     assert f"{xla_flags.FLAG}=true" in os.environ["XLA_FLAGS"]
     monkeypatch.setenv("XLA_FLAGS", f"{xla_flags.FLAG}=false")
     assert cli.main(["list"]) == 0
-    assert os.environ["XLA_FLAGS"] == f"{xla_flags.FLAG}=false"
+    flags = os.environ["XLA_FLAGS"].split()
+    assert f"{xla_flags.FLAG}=false" in flags and f"{xla_flags.FLAG}=true" not in flags
