@@ -493,9 +493,10 @@ def _mesh_of(batch) -> Optional[jax.sharding.Mesh]:
 
 def _split_as(tree, batch):
     """``tree`` (per-scenario arrays) split over the devices as ``batch`` is: XLA returns a
-    program's empty outputs whole on every device, and the next segment's executable,
-    compiled ahead, expects every carry leaf split (no copy where it already is)."""
-    if _mesh_of(batch) is None:
+    per-device program's empty outputs whole on every device, and the next segment's
+    executable, compiled ahead, expects every carry leaf split (no copy where it already
+    is)."""
+    if _mesh_of(batch) not in _per_mesh:
         return tree
     return jax.device_put(tree, jax.tree.leaves(batch)[0].sharding)
 
@@ -545,9 +546,18 @@ def _jaxlib_version() -> tuple[int, ...]:
 _per_mesh: dict = {}     # mesh -> its (whole run, start, segment) programs
 
 
+def _jitted_call(fn, static, *args):
+    """``fn(*args, static=static)`` without the trace cache (programs XLA partitions over
+    several devices: their export is not kept)."""
+    return fn(*args, static=static)
+
+
 def _programs(mesh: Optional[jax.sharding.Mesh]):
-    """(whole run, start, segment) programs for a batch on ``mesh`` (None: one device)."""
-    if mesh is None:
+    """(whole run, start, segment) programs for a batch on ``mesh`` (None: one device).
+    Several CPU devices get per-device loops (:func:`_per_device`); several GPUs keep the
+    loops XLA partitions (the per-device programs crashed XLA's GPU compile on two H200s,
+    jax 0.11.2: BENCHMARKS.md, "CPU cores as devices")."""
+    if mesh is None or mesh.devices.flat[0].platform != "cpu":
         return _run_whole, _start_batch, _segment_batch
     if mesh not in _per_mesh:
         _check_cpu_pool(mesh)
@@ -566,16 +576,19 @@ def run(batch: Scenario, static: Static):
     compiled loop, so it stays cacheable on disk (:mod:`hlip_jax.compile_cache`; the traced
     programs too, :mod:`hlip_jax.trace_cache`).  Both give the same numbers: a segment
     boundary only splits the scan."""
-    whole, start, segment = _programs(_mesh_of(batch))
+    mesh = _mesh_of(batch)
+    whole, start, segment = _programs(mesh)
+    call = trace_cache.call if mesh is None or mesh in _per_mesh else _jitted_call
     if not static.progress:
-        return trace_cache.call(whole, static, batch)
+        return call(whole, static, batch)
     K, L = static.n_steps, segment_length(static.n_steps)
-    _compile_ahead(start, segment, batch, static, L)
-    carry, ok0 = trace_cache.call(start, static, batch)
+    if call is trace_cache.call:
+        _compile_ahead(start, segment, batch, static, L)
+    carry, ok0 = call(start, static, batch)
     outs = []
     for k0 in range(0, K, L):
         carry = _split_as(carry, batch)
-        carry, out = trace_cache.call(segment, static, batch, carry, jnp.arange(k0, k0 + L))
+        carry, out = call(segment, static, batch, carry, jnp.arange(k0, k0 + L))
         outs.append(out)
         jax.block_until_ready(carry)
         progress.step_done(min(k0 + L, K) - 1, K)

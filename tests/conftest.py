@@ -10,6 +10,10 @@ import jax
 import pytest
 
 jax.config.update("jax_enable_x64", True)
+# Start the backend now, with the environment pytest was given: a test that runs the CLI
+# in-process sets XLA_FLAGS (one CPU device per core, hlip_jax.xla_flags), and a backend
+# started after that would split every later test's batch over the cores.
+jax.devices()
 
 
 @pytest.fixture
