@@ -24,7 +24,8 @@ on disk and take the ordinary jitted call, as do runs over several processes, ru
 ``jax.disable_jit`` and installs without ``flatbuffers`` (jax.export's serializer).  A
 program run by several devices of this process (:func:`hlip_jax.rollout.run`'s per-device
 loops: their name says how many) is stored with its device split and compiled for the
-arguments' placement.  The directory is ``<compilation cache>/traces``; the CLI's
+arguments' placement; programs XLA partitions over several GPUs are not given to the cache
+(the rollout calls them directly).  The directory is ``<compilation cache>/traces``; the CLI's
 ``--no-compile-cache`` turns both caches off.  Entries are Python pickles: like JAX's own
 compilation cache, the directory must be writable by its user only.
 """
