@@ -522,10 +522,10 @@ def _per_device(fn, mesh, replicated: int = 0):
 
 
 def _check_cpu_pool(mesh: jax.sharding.Mesh) -> None:
-    """Refuse a batch split over as many CPU devices of this process as XLA's CPU thread pool
-    has threads under jaxlib < 0.11, whose batched LAPACK kernels then wait forever for a free thread
-    (:mod:`hlip_jax.xla_flags`).  The pool has ``PJRT_NPROC`` (or ``NPROC``) threads, else
-    one per usable core."""
+    """Refuse a batch split over as many CPU devices of this process as XLA's CPU thread
+    pool has threads under jaxlib < 0.11, whose batched LAPACK kernels then wait forever for
+    a free thread (:mod:`hlip_jax.xla_flags`).  The pool has ``PJRT_NPROC`` (or ``NPROC``)
+    threads, else one per usable core."""
     from hlip_jax import xla_flags
     if mesh.devices.flat[0].platform != "cpu" or _jaxlib_version() >= (0, 11):
         return
