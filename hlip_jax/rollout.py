@@ -27,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import os
 from typing import NamedTuple, Optional, Sequence
 
 import jax
@@ -529,8 +528,7 @@ def _check_cpu_pool(mesh: jax.sharding.Mesh) -> None:
     from hlip_jax import xla_flags
     if mesh.devices.flat[0].platform != "cpu" or _jaxlib_version() >= (0, 11):
         return
-    pool = next((int(os.environ[v]) for v in xla_flags.POOL_VARS
-                 if os.environ.get(v, "").isdigit()), xla_flags.usable_cores())
+    pool = xla_flags.cpu_pool_threads()
     here = sum(d.process_index == jax.process_index() for d in mesh.devices.flat)
     if here >= pool:
         raise RuntimeError(

@@ -12,7 +12,7 @@ runs were equal bit for bit, at the same speed for that batch.  The CPU backend 
 core: on the 2-core machine a sweep ran faster pinned to one core than free on two.  With
 ``--xla_force_host_platform_device_count=N`` (N = the cores this process may use) the CPU
 backend has N devices and a sweep's scenarios are split over them, each device running its
-share of the loop on its own core (:func:`hlip_jax.rollout.run`; 1.3–1.4× on 2 cores,
+share of the loop on its own core (:func:`hlip_jax.rollout.run`; 1.2–1.4× on 2 cores,
 BENCHMARKS.md, "CPU cores as devices").  jaxlib 0.10's LAPACK kernels wait on XLA's CPU
 thread pool for their batch's tasks; with every pool thread busy running a device's program
 none is left for those tasks and the process hangs, so the pool is given 2N threads
@@ -54,6 +54,13 @@ def usable_cores() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:           # not on Linux
         return os.cpu_count() or 1
+
+
+def cpu_pool_threads(environ: MutableMapping[str, str] = os.environ) -> int:
+    """Threads of XLA's CPU thread pool as ``environ`` sizes it (:data:`POOL_VARS`, else one
+    per usable core)."""
+    return next((int(environ[v]) for v in POOL_VARS if environ.get(v, "").isdigit()),
+                usable_cores())
 
 
 def cpu_devices(flags: str) -> int:
