@@ -39,6 +39,9 @@ def parse():
     p.add_argument("--shrink", type=int, default=None,
                    help="tier shrink factor of the straggler compaction (qp.Settings.compaction_shrink; "
                    "default: the solver's)")
+    p.add_argument("--block-kernel", choices=("xla", "fused"), default="xla",
+                   help="qp.Settings.block_kernel: ADMM iterations as XLA operations, or each block "
+                   "as one Pallas kernel (linsys inverse only)")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--osqp-problems", type=int, default=300)
     p.add_argument("--seed", type=int, default=0)
@@ -98,7 +101,8 @@ def main():
     batches = [int(b) for b in ARGS.batches.split(",")]
     sizes = [tuple(int(v) for v in s.split("x")) for s in ARGS.sizes.split(",")]
     modes = ARGS.modes.split(",")
-    settings = qp.Settings(eps_abs=ARGS.eps, eps_rel=ARGS.eps, linsys=ARGS.linsys)
+    settings = qp.Settings(eps_abs=ARGS.eps, eps_rel=ARGS.eps, linsys=ARGS.linsys,
+                           block_kernel=ARGS.block_kernel)
     if ARGS.shrink is not None:
         settings = settings._replace(compaction_shrink=ARGS.shrink)
     rng = np.random.default_rng(ARGS.seed)
@@ -154,6 +158,7 @@ def render(rows):
         f"Machine: {machine()}.  ",
         f"Command: `{cmd}`  ",
         f"Tolerance eps_abs = eps_rel = {ARGS.eps:g} for both solvers; linsys = {ARGS.linsys}; "
+        f"block kernel = {ARGS.block_kernel}; "
         "OSQP 1.1.3 time = its C timer `solve_time` (one thread, no setup, no polishing), mean over "
         f"{ARGS.osqp_problems} problems; ours = wall time of the batched jitted solve incl. scaling and "
         f"factorisation, best of {ARGS.repeats}.",

@@ -10,7 +10,7 @@
     hlip-sweep ticks DIR SCENARIO            (the controller's 1 kHz log of one Cassie run)
     hlip-sweep s2s DIR [--scenarios REGEX] [--skip K]   (the robot's S2S map, least squares)
     hlip-sweep coverage DIR [--q Q] [--train-on FIELD=V1,V2]
-    hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...] [--qp-linsys ...]
+    hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...] [--qp-linsys ...] [--qp-kernel ...]
                      [--qp-rho-start ...]
 
 SWEEP is a path to a TOML sweep file or the name of a shipped one (``paper`` for
@@ -207,6 +207,10 @@ def _bench_parser(sub) -> None:
     b.add_argument("--qp-linsys", nargs="+", default=["cholesky"], choices=("cholesky", "inverse"),
                    metavar="SOLVE", help="CLF-QP linear solves to time, each on the same batch in this "
                    "process (cassie.qp_linsys: cholesky, inverse)")
+    b.add_argument("--qp-kernel", nargs="+", default=["xla"], choices=("xla", "fused"),
+                   metavar="KERNEL", help="CLF-QP iteration kernels to time, each on the same batch "
+                   "in this process (cassie.qp_kernel: xla, fused; fused runs with the inverse "
+                   "linear solve only, so it needs --qp-linsys inverse)")
     b.add_argument("--qp-rho-start", nargs="+", default=["previous"],
                    choices=("default", "previous"), metavar="RHO",
                    help="CLF-QP starting step sizes to time, each on the same batch in this "
@@ -545,13 +549,18 @@ def cmd_bench(args) -> int:
         except ValueError as err:
             raise UserError(f"--physics: {err}") from None
 
+    if "fused" in args.qp_kernel and "inverse" not in args.qp_linsys:
+        raise UserError("--qp-kernel: 'fused' needs the inverse linear solve; allowed: xla, or "
+                        "fused together with --qp-linsys inverse")
+
     def write(rows):
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))
 
     write(bench.closed_loop(args.batch, args.duration, args.devices, admm=args.admm,
                             qp_loops=args.qp_loop, physics=args.physics, on_row=write,
-                            qp_linsys=args.qp_linsys, qp_rho_start=args.qp_rho_start))
+                            qp_linsys=args.qp_linsys, qp_rho_start=args.qp_rho_start,
+                            qp_kernels=args.qp_kernel))
     return EXIT_OK
 
 

@@ -186,6 +186,11 @@ class CassieConfig:
                           "(the inverse formed once per factorisation, then a matrix-vector product; "
                           "the same solutions within the solver's tolerance, faster on a GPU, "
                           "BENCHMARKS.md)", choices=("cholesky", "inverse"))
+    qp_kernel: str = spec("xla", doc="how the CLF-QP's ADMM iterations run (static): 'xla' (each "
+                          "iteration as XLA operations) or 'fused' (each block of iterations as one "
+                          "Pallas kernel that keeps the problem on chip; needs qp_linsys = 'inverse'; "
+                          "compiled on GPUs, interpreted elsewhere, so only for GPUs; the same "
+                          "iterations up to float rounding, BENCHMARKS.md)", choices=("xla", "fused"))
     qp_rho_start: str = spec("previous", doc="the ADMM step size rho each tick's CLF-QP starts from: "
                              "the previous tick's final rho ('previous', as OSQP keeps rho between "
                              "warm-started solves; about 40 % fewer iterations per tick, "
@@ -283,6 +288,7 @@ class ScenarioConfig:
 #: a batch (:func:`hlip_jax.rollout.build`) and of a sweep (:mod:`hlip_jax.sweep`)
 STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.qp_max_iter", "mpc.qp_eps",
                  "cassie.qp_max_iter", "cassie.qp_eps", "cassie.qp_loop", "cassie.qp_linsys",
+                 "cassie.qp_kernel",
                  "cassie.physics")
 
 

@@ -51,6 +51,8 @@ import jax.numpy as jnp
 from jax import lax
 from jax.scipy.linalg import cho_factor, cho_solve
 
+from hlip_jax import qp_fused
+
 # --- OSQP 1.x status codes -------------------------------------------------------------------
 SOLVED = 1
 SOLVED_INACCURATE = 2
@@ -107,6 +109,9 @@ class Settings(NamedTuple):
       run ⌈max_iter / check_interval⌉ blocks (a loop of static trip count; same results).
     compaction_shrink: with straggler compaction (``solve(compact=True)``), each tier holds
       1/``compaction_shrink`` of the one before (:func:`compaction_tiers`; an integer ≥ 2).
+    block_kernel: "xla" (each ADMM iteration as XLA operations) or "fused" (each block of
+      ``check_interval`` iterations as one Pallas kernel, :mod:`hlip_jax.qp_fused`; needs
+      ``linsys = "inverse"``; compiled on GPUs, interpreted elsewhere).
     """
 
     eps_abs: float = 1e-3
@@ -125,6 +130,7 @@ class Settings(NamedTuple):
     linsys: str = "cholesky"
     early_exit: bool = True
     compaction_shrink: int = 2
+    block_kernel: str = "xla"
 
 
 class Solution(NamedTuple):
@@ -184,6 +190,10 @@ def validate_settings(s: Settings) -> None:
         bad("early_exit", "{True, False}")
     if not (isinstance(s.compaction_shrink, int) and s.compaction_shrink >= 2):
         bad("compaction_shrink", "integers >= 2")
+    if s.block_kernel not in ("xla", "fused"):
+        bad("block_kernel", '"xla" or "fused"')
+    if s.block_kernel == "fused" and s.linsys != "inverse":
+        bad("block_kernel", '"xla" with linsys "cholesky" ("fused" needs linsys "inverse")')
 
 
 # --- helpers -----------------------------------------------------------------------------------
@@ -416,9 +426,13 @@ def _initial_state(d: "_Scaled", s: Settings, x0, y0, rho0, valid, warm: bool) -
                   ~valid, zero + jnp.inf, zero + jnp.inf)
 
 
-def _iterate(d: "_Scaled", s: Settings, st: "_State", rho_vec):
-    """``check_interval`` ADMM steps (the last, partial block stops at max_iter exactly).
-    Returns (x, z, y, dx, dy, it)."""
+def _iterate(d: "_Scaled", s: Settings, st: "_State"):
+    """``check_interval`` ADMM steps of one problem (the last, partial block stops at max_iter
+    exactly).  Returns (x, z, y, dx, dy, it)."""
+    if s.block_kernel == "fused":
+        one = lambda t: jax.tree.map(lambda a: a[None], t)
+        return tuple(a[0] for a in _iterate_fused(one(d), s, one(st)))
+    rho_vec = _rho_vec(st.rho, d)
     exact_blocks = s.max_iter % s.check_interval == 0
 
     def it_body(_, carry):
@@ -432,6 +446,22 @@ def _iterate(d: "_Scaled", s: Settings, st: "_State", rho_vec):
 
     return lax.fori_loop(0, s.check_interval, it_body,
                          (st.x, st.z, st.y, st.dx, st.dy, st.it), unroll=_UNROLL)
+
+
+def _iterate_fused(d: "_Scaled", s: Settings, st: "_State"):
+    """:func:`_iterate` for a batch (leading axis) as one Pallas kernel (``linsys`` "inverse":
+    ``st.F`` is K⁻¹).  Returns (x, z, y, dx, dy, it), batched."""
+    prob = qp_fused.Problems(st.F, d.A, d.q, d.l, d.u, jax.vmap(_rho_vec)(st.rho, d))
+    its = qp_fused.Iterates(st.x, st.z, st.y, st.dx, st.dy, st.it)
+    return tuple(qp_fused.admm_block(prob, its, sigma=s.sigma, alpha=s.alpha,
+                                     iterations=s.check_interval, max_iter=s.max_iter))
+
+
+def _iterate_batch(d: "_Scaled", s: Settings, st: "_State"):
+    """:func:`_iterate` for every problem of a batch (leading axis)."""
+    if s.block_kernel == "fused":
+        return _iterate_fused(d, s, st)
+    return jax.vmap(lambda d, st: _iterate(d, s, st))(d, st)
 
 
 def _block_status(d: "_Scaled", s: Settings, x, z, y, dx, dy, it):
@@ -468,14 +498,19 @@ def _new_rho(d: "_Scaled", s: Settings, st: "_State", z, prods, it, done):
     return jnp.where(change, rho_new, st.rho), change
 
 
-def _block_core(d: "_Scaled", s: Settings, st: "_State"):
-    """One block of the outer loop before refactorisation: iterate, check, adapt ρ.
+def _after_iterate(d: "_Scaled", s: Settings, st: "_State", iterates):
+    """Check the block's iterates and adapt ρ.
     Returns (new state with the old factorisation, whether ρ changed)."""
-    x, z, y, dx, dy, it = _iterate(d, s, st, _rho_vec(st.rho, d))
+    x, z, y, dx, dy, it = iterates
     status, prim, dual, prods = _block_status(d, s, x, z, y, dx, dy, it)
     done = status != 0
     rho, change = _new_rho(d, s, st, z, prods, it, done)
     return _State(x, z, y, dx, dy, rho, st.F, it, status, done, prim, dual), change
+
+
+def _block_core(d: "_Scaled", s: Settings, st: "_State"):
+    """One block of the outer loop before refactorisation: iterate, check, adapt ρ."""
+    return _after_iterate(d, s, st, _iterate(d, s, st))
 
 
 def _freeze(old: "_State", new: "_State") -> "_State":
@@ -495,7 +530,8 @@ def _block_batch(d: "_Scaled", s: Settings, st: "_State") -> "_State":
     """One block for a batch (leading axis): :func:`_block_core` per problem, and the
     factorisations of the problems whose ρ changed, computed only in blocks where some did
     (under vmap :func:`_block`'s condition would become a select that always factors)."""
-    new, change = jax.vmap(lambda d, st: _block_core(d, s, st))(d, st)
+    iterates = _iterate_batch(d, s, st)
+    new, change = jax.vmap(lambda d, st, i: _after_iterate(d, s, st, i))(d, st, iterates)
     refactor = jax.vmap(lambda d, rho: _factor(d, s.sigma, _rho_vec(rho, d), s.linsys))
     fresh = lambda: jnp.where(change[:, None, None], refactor(d, new.rho), st.F)
     F = lax.cond(jnp.any(change), fresh, lambda: st.F)

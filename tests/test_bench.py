@@ -24,6 +24,12 @@ def test_bench_configs_carry_the_admm_budget():
     assert bench.configs(1, 0.6)[0].cassie.physics == "jax"
     assert bench.configs(1, 0.6, qp_linsys="inverse")[0].cassie.qp_linsys == "inverse"
     assert bench.configs(1, 0.6)[0].cassie.qp_linsys == "cholesky"
+    assert bench.configs(1, 0.6, qp_kernel="fused")[0].cassie.qp_kernel == "fused"
+    assert bench.configs(1, 0.6)[0].cassie.qp_kernel == "xla"
+    # variants: every combination, the fused kernel with the inverse solve only
+    v = bench._variants(["jax"], ["while"], ["cholesky", "inverse"], ["xla", "fused"], ["previous"])
+    assert [(x["qp_linsys"], x["qp_kernel"]) for x in v] == [
+        ("cholesky", "xla"), ("inverse", "xla"), ("inverse", "fused")]
     # the CLF-QP's starting step size: the preset's (the previous tick's) unless asked
     assert bench.configs(1, 0.6)[0].cassie.qp_rho_start == "previous"
     assert bench.configs(1, 0.6, qp_rho_start="default")[0].cassie.qp_rho_start == "default"

@@ -279,6 +279,26 @@ def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
     np.testing.assert_allclose(x[:nu], ref.x[:nu], atol=1e-4 * max(1.0, np.abs(ref.x).max()))
 
 
+def test_fused_kernel_gives_the_same_torques(cassie, terms_fn):
+    # cassie.qp_kernel = "fused" (each block of ADMM iterations as one Pallas kernel,
+    # interpreted on the CPU) against the XLA iterations, both with the inverse solve and the
+    # tick's settings, cold and warm: the same iterations and status, torques within 1e-9 N m
+    # (float64: the kernel sums in another order, ~1e-16 relative per operation, amplified by
+    # at most the 150-iteration budget)
+    meas, des, cond, contact, lo, hi = _left_foot_problem(cassie, terms_fn, seed=7)
+    warm = control.warm_zeros(cassie, jnp.float64)
+    s = clfqp.DEFAULT_SETTINGS._replace(linsys="inverse")
+    runs = {}
+    for kernel in ("xla", "fused"):
+        st = s._replace(block_kernel=kernel)
+        r0 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, warm, st)
+        r1 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, r0.warm, st)
+        runs[kernel] = (r0, r1)
+    for a, b in zip(runs["xla"], runs["fused"]):
+        np.testing.assert_allclose(a.tau, b.tau, atol=1e-9, rtol=0)
+        assert int(a.status) == int(b.status) and int(a.iterations) == int(b.iterations)
+
+
 def test_chatter_term_adds_a_proximal_cost_and_is_inert_at_zero(cassie, terms_fn):
     # ½ w_c ‖τ − τ_prev‖² adds w_c I to the torque block of P and −w_c τ_prev to q (exactly:
     # the same matrices as the plain QP's with the shifted entries); at w_c = 0 the QP does

@@ -128,6 +128,8 @@ def test_user_errors(tmp_path, capsys):
     assert code == 2 and "--duration must be > 0" in err
     code, _, err = cli(capsys, "bench", "--batch", "0")
     assert code == 2 and "--batch" in err
+    code, _, err = cli(capsys, "bench", "--qp-kernel", "fused")
+    assert code == 2 and "--qp-kernel" in err and "--qp-linsys inverse" in err
 
 
 TINY = """

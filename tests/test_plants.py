@@ -39,6 +39,14 @@ def test_cassie_check_rejects_hlip_only_disturbances():
     assert plants.check(dataclasses.replace(cfg, plant="hlip")) is None
 
 
+def test_cassie_check_rejects_the_fused_kernel_without_the_inverse():
+    cassie = C.CassieConfig(qp_kernel="fused")
+    msg = plants.check(C.ScenarioConfig(plant="cassie", cassie=cassie))
+    assert msg and msg.startswith("cassie.qp_kernel") and "qp_linsys = 'inverse'" in msg
+    ok = dataclasses.replace(cassie, qp_linsys="inverse")
+    assert plants.check(C.ScenarioConfig(plant="cassie", cassie=ok)) is None
+
+
 def test_cassie_step_span_is_computed_once_per_gait():
     """Building a sweep asks every scenario for its step span; the swing profile's landing
     fraction behind it is a compiled bisection, so it must be computed once per (clearance,

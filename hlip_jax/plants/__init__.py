@@ -82,6 +82,10 @@ def check(cfg) -> Optional[str]:
                 return (f"realism.{f}: {getattr(cfg.realism, f):g} needs the MJX-JAX physics "
                         "(the Warp physics has no terrain); allowed with cassie.physics = "
                         "'warp': 0")
+        if cfg.cassie.qp_kernel == "fused" and cfg.cassie.qp_linsys != "inverse":
+            return (f"cassie.qp_kernel: 'fused' with cassie.qp_linsys = {cfg.cassie.qp_linsys!r}; "
+                    "allowed: 'xla', or 'fused' with qp_linsys = 'inverse' (the kernel "
+                    "multiplies by the inverse)")
         if cfg.realism.step_height != 0.0 and cfg.realism.rough_height != 0.0:
             return ("realism.rough_height: a scenario has a step (realism.step_height) or rough "
                     "ground, not both; allowed with step_height != 0: 0")

@@ -349,15 +349,16 @@ def step(params: Params, state: State, cmd: StepCommand,
 
 def settings(cfg, robots: int = 1) -> tick.Settings:
     """The tick's static settings of a scenario simulated in a batch of ``robots``: the
-    CLF-QP's ADMM settings (``cassie.qp_max_iter``, ``qp_eps``, ``qp_loop``, ``qp_linsys``), the physics'
-    implementation (``cassie.physics``; "warp" raises ``ValueError`` where warp-lang is
-    missing) and the batch size (Warp's contact buffer holds the whole batch's contacts)."""
+    CLF-QP's ADMM settings (``cassie.qp_max_iter``, ``qp_eps``, ``qp_loop``, ``qp_linsys``,
+    ``qp_kernel``), the physics' implementation (``cassie.physics``; "warp" raises
+    ``ValueError`` where warp-lang is missing) and the batch size (Warp's contact buffer holds the whole batch's contacts)."""
     if cfg.cassie.physics == "warp":
         from hlip_jax.plants.cassie import warp_physics
         warp_physics.require()
     qp_settings = clfqp.DEFAULT_SETTINGS._replace(
         max_iter=cfg.cassie.qp_max_iter, eps_abs=cfg.cassie.qp_eps, eps_rel=cfg.cassie.qp_eps,
-        early_exit=cfg.cassie.qp_loop != "fixed", linsys=cfg.cassie.qp_linsys)
+        early_exit=cfg.cassie.qp_loop != "fixed", linsys=cfg.cassie.qp_linsys,
+        block_kernel=cfg.cassie.qp_kernel)
     return tick.Settings(qp=qp_settings, qp_compact=cfg.cassie.qp_loop == "compact",
                          physics=cfg.cassie.physics, robots=int(robots))
 
