@@ -9,6 +9,7 @@
     hlip-sweep show SWEEP [--plant ...] [--duration S] [--limit N]
     hlip-sweep ticks DIR SCENARIO            (the controller's 1 kHz log of one Cassie run)
     hlip-sweep s2s DIR [--scenarios REGEX] [--skip K]   (the robot's S2S map, least squares)
+    hlip-sweep whull DIR --out FILE [--scenarios REGEX]  (a hull W for the tube MPC)
     hlip-sweep coverage DIR [--q Q] [--train-on FIELD=V1,V2]
     hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...] [--qp-linsys ...] [--qp-kernel ...]
                      [--qp-rho-start ...]
@@ -277,6 +278,17 @@ def build_parser() -> argparse.ArgumentParser:
     wb.add_argument("--group", action="append", default=None, metavar="NAME",
                     help="a group of coverage.csv (repeat for several; default: all groups)")
 
+    wh = sub.add_parser("whull", help="the hull W of a results directory, as a points file "
+                        "and sweep-file lines for the tube MPC", description="Pool the "
+                        "chosen runs' S2S disturbances (pushes' steps left out, as in "
+                        "coverage.csv), write the vertices of their symmetric convex hull to "
+                        "FILE (columns plane, c, p, v) and print the [base.mpc] lines that "
+                        "make it the tube's W (hlip_jax.robust).")
+    wh.add_argument("dir", metavar="DIR")
+    wh.add_argument("--out", required=True, metavar="FILE", help="the CSV file to write")
+    wh.add_argument("--scenarios", metavar="REGEX", default="",
+                    help="only scenarios whose name matches REGEX (Python re.search)")
+
     sub.add_parser("list", help="list the shipped sweeps", description="List sweeps/*.toml.")
 
     s = sub.add_parser("show", help="expand a sweep and print its grid",
@@ -452,6 +464,48 @@ def cmd_s2s(args) -> int:
     return EXIT_OK
 
 
+def cmd_whull(args) -> int:
+    import csv
+    import re
+
+    from hlip_jax import robust, store
+    d, out = Path(args.dir), Path(args.out)
+    if not d.is_dir():
+        raise UserError(f"{d}: results directory not found")
+    if out.exists():
+        raise UserError(f"--out: {out} exists; allowed: a new file (nothing is overwritten)")
+    try:
+        pattern = re.compile(args.scenarios)
+    except re.error as err:
+        raise UserError(f"--scenarios: not a regular expression ({err})") from None
+    names = [c["name"] for c in store.read_manifest(d)["configs"]]
+    chosen = [i for i, n in enumerate(names) if pattern.search(n)]
+    if not chosen:
+        raise UserError(f"--scenarios: {args.scenarios!r} matches none of the {len(names)} scenarios")
+    try:
+        frame, samples, runs = store.disturbance_samples(d, chosen)
+    except store.StoreError as err:
+        raise UserError(str(err)) from None
+    if samples[0].shape[1] != 3:
+        raise UserError("the runs' W is on [p, v]; the tube needs [c, p, v] "
+                        "(gain.with_position = true)")
+    verts = [robust.symmetric_hull_vertices(S) for S in samples]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(robust.HULL_COLUMNS)
+        for i, V in enumerate(verts):
+            w.writerows([i + 1, *(f"{x:.9g}" for x in v)] for v in V)
+    print(f"# W of {d}: the symmetric convex hull of {len(samples[0])} disturbance samples "
+          f"per plane from {runs} runs (pushes' steps left out); "
+          f"{len(verts[0])} and {len(verts[1])} vertex pairs in {out}")
+    print("[base.mpc]")
+    print(f'w_frame = "{frame}"')
+    print('w_shape = "hull"')
+    print(f'w_hull_file = "{out}"')
+    return EXIT_OK
+
+
 def cmd_wbox(args) -> int:
     import numpy as np
 
@@ -574,7 +628,7 @@ def main(argv=None) -> int:
     xla_flags.apply()        # reproducible GPU runs (before JAX's backend starts)
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
                "bench": cmd_bench, "ticks": cmd_ticks, "coverage": cmd_coverage,
-               "s2s": cmd_s2s, "wbox": cmd_wbox}[args.cmd]
+               "s2s": cmd_s2s, "wbox": cmd_wbox, "whull": cmd_whull}[args.cmd]
     try:
         with _sigterm_unwinds():
             return handler(args)

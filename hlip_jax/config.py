@@ -56,7 +56,7 @@ class MPCConfig:
                      "plan and every robot falls within a few steps, docs/cassie_gait.md round 9)",
                      choices=("tube", "measured", "position"))
     robust: bool = spec(False, doc="tube MPC: tighten step limits by K E and keep-out discs by E, "
-                        "E = mRPI(A + B K, W) of the W box below (hlip_jax.robust)",
+                        "E = mRPI(A + B K, W) of the W below (hlip_jax.robust)",
                         choices=(True, False))
     w_frame: str = spec("heading", doc="frame of the W box: plane 1/2 = sagittal/lateral ('heading') "
                         "or world x/y ('world')", choices=("heading", "world"))
@@ -66,6 +66,13 @@ class MPCConfig:
     w_c_2: float = spec(0.0, 0.0, 1.0, "W half-width on c, plane 2 (robust only)", "m")
     w_p_2: float = spec(0.0, 0.0, 1.0, "W half-width on p, plane 2 (robust only)", "m")
     w_v_2: float = spec(0.0, 0.0, 5.0, "W half-width on v, plane 2 (robust only)", "m/s")
+    w_shape: str = spec("box", doc="shape of W (robust only): the box of the half-widths above "
+                        "('box') or the symmetric convex hull of the points in mpc.w_hull_file "
+                        "('hull', as hlip-sweep whull writes them; the half-widths stay 0)",
+                        choices=("box", "hull"))
+    w_hull_file: str = spec("", doc="CSV file of a hull W's points, columns plane (1 or 2), c, p, "
+                            "v, in the frame mpc.w_frame; read with w_shape = 'hull' only (a "
+                            "relative path from the current directory)")
     qp_max_iter: int = spec(400, 10, 100000, "ADMM iteration cap per MPC solve")
     qp_eps: float = spec(1e-4, 1e-10, 1e-1, "ADMM absolute/relative tolerance")
 

@@ -18,9 +18,12 @@ the S2S model lives; between impacts nothing is claimed.  A placement error that
 after the law (``step_error``) is inside d for the invariance, but U ⊖ K E only tightens the
 law's part of the step.
 
-W is a box of symmetric half-widths w = (w_c, w_p, w_v) [m, m, m/s] per plane (a box measured
-from samples, ``w_lo``/``w_hi`` of coverage.csv, is enclosed by the symmetric box of half-widths
-max(|lo|, |hi|)), in one of two frames:
+W is, per plane, either a box of symmetric half-widths w = (w_c, w_p, w_v) [m, m, m/s] (a box
+measured from samples, ``w_lo``/``w_hi`` of coverage.csv, is enclosed by the symmetric box of
+half-widths max(|lo|, |hi|)), or the symmetric convex hull conv(±s_j) of points s_j on
+[c, p, v] (``mpc.w_shape = "hull"``, the points from a file, :func:`read_hull`): the smallest
+convex symmetric set that holds every disturbance sample, with support h_W(d) = max_j |s_j·d|.
+Either is in one of two frames:
 
 * ``"heading"``: plane 1 sagittal, plane 2 lateral, the error rotated into the path heading
   (what the report and coverage.csv show when both planes share one gain);
@@ -35,15 +38,19 @@ numbers per plane i and step m,
     ec_i(m) = h_{F_m}(e_c) = Σ_{l<m} |(A_cl^l)ᵀ e_c| · w_i   [m]   (COM position error bound)
     eu_i(m) = h_{F_m}(K_i) = Σ_{l<m} |(A_cl^l)ᵀ K_i| · w_i   [m]   (stepping-law correction)
 
-(support of a symmetric box: h_W(d) = |d|·w).  A table holds m = 0..STEPS−2; its last row is
-the support of the outer mRPI approximation (:func:`hlip_jax.sets.mrpi`), which bounds
-every F_m, and serves every later step.  In the heading frame the rows are rotated into the
-world by the heading of each planned step (:func:`frame_weights`).
+(support of a symmetric box: h_W(d) = |d|·w; of a hull, max_j |s_j·d| in place of |·|·w).  A
+table holds m = 0..STEPS−2; its last row bounds every F_m and serves every later step: for a
+box the support of the outer mRPI approximation (:func:`hlip_jax.sets.mrpi`), for a hull the
+series summed until ‖A_clᴸ‖₂ ≤ 1e-12 plus a bound on its tail (:func:`hull_bounds`).  In the
+heading frame the rows are rotated into the world by the heading of each planned step
+(:func:`frame_weights`).
 """
 
 from __future__ import annotations
 
+import csv
 import functools
+import os
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -91,13 +98,45 @@ def plane_bounds(A_cl, K, w, steps: int = STEPS) -> np.ndarray:
     return out
 
 
+def _tail_bound(A_cl, D, radius: float, L: int) -> np.ndarray:
+    """Upper bound of Σ_{l ≥ L} h_W((A_clˡ)ᵀ d) for the rows d of ``D``, W in the ball of
+    ``radius``: with a = ‖A_clᴸ‖₂ < 1 and M = max_{i<L} ‖A_clⁱ‖₂, every ‖A_clˡ‖₂ ≤ M a^⌊l/L⌋,
+    so the tail is at most radius ‖d‖ L M a / (1 − a)."""
+    powers = [np.linalg.matrix_power(A_cl, i) for i in range(L + 1)]
+    a = np.linalg.norm(powers[L], 2)
+    M = max(np.linalg.norm(P, 2) for P in powers[:L])
+    return radius * np.linalg.norm(D, axis=1) * L * M * a / (1.0 - a)
+
+
+def hull_bounds(A_cl, K, points, steps: int = STEPS, a_max: float = 1e-12,
+                l_max: int = 100000) -> np.ndarray:
+    """:func:`plane_bounds` for W = conv(±points) (points (N, 3) on [c, p, v]): rows m =
+    0..steps−2 the support of F_m in e_c and K, the last row an upper bound of F_∞'s: the
+    series to the first L with ‖A_clᴸ‖₂ ≤ ``a_max``, plus :func:`_tail_bound`."""
+    A_cl, K, S = (np.asarray(a, np.float64) for a in (A_cl, K, points))
+    D = np.stack([np.eye(3)[0], K])
+    h = lambda G: np.abs(S @ G.T).max(axis=0)
+    out, total, G, L = np.zeros((steps, 2)), np.zeros(2), D.copy(), 0
+    while L < l_max and (L < steps - 2 or np.linalg.norm(np.linalg.matrix_power(A_cl, L), 2) > a_max):
+        total = total + h(G)
+        L += 1
+        G = G @ A_cl
+        if L <= steps - 2:
+            out[L] = total
+    if L >= l_max:
+        raise ValueError("A + B K is not Schur stable on [c, p, v]: no bounded invariant set")
+    out[-1] = total + _tail_bound(A_cl, D, float(np.linalg.norm(S, axis=1).max()), L)
+    return out
+
+
 @functools.lru_cache(maxsize=1024)
 def _cached(A_cl: tuple, K: tuple, w: tuple) -> np.ndarray:
     return plane_bounds(np.array(A_cl).reshape(3, 3), np.array(K), np.array(w))
 
 
-def tightening(A, B, gain, w, frame: str) -> Tightening:
-    """The MPC's :class:`Tightening` for a W box ``w`` (2, 3) in ``frame`` (:data:`FRAMES`).
+def tightening(A, B, gain, w, frame: str, hull=None) -> Tightening:
+    """The MPC's :class:`Tightening` for a W box ``w`` (2, 3) in ``frame`` (:data:`FRAMES`),
+    or, given ``hull`` (two (N_i, 3) point arrays, planes 1 and 2), for W = conv(±points).
 
     Args:
       A, B: (3, 3), (3,) S2S model on [c, p, v]; gain: (2, 3) K per world plane.
@@ -117,7 +156,10 @@ def tightening(A, B, gain, w, frame: str) -> Tightening:
         if not sets.schur_stable(A_cl):
             raise ValueError("A + B K is not Schur stable on [c, p, v]: the COM position error "
                              "has no bounded invariant set (use gain.with_position = true)")
-        b = _cached(tuple(A_cl.ravel()), tuple(gain[i]), tuple(w[i]))
+        if hull is None:
+            b = _cached(tuple(A_cl.ravel()), tuple(gain[i]), tuple(w[i]))
+        else:
+            b = hull_bounds(A_cl, gain[i], hull[i])
         ec[:, i], eu[:, i] = b[:, 0], b[:, 1]
     return Tightening(e_c=ec, e_u=eu, e_heading=np.float64(frame == "heading"))
 
@@ -134,6 +176,62 @@ def check_limits(t: Tightening, length_min, length_max, width_min, width_max) ->
                              f"stepping law's correction K E (±{m:.3g} m): U ⊖ K E is empty; "
                              f"allowed: mpc.{name}_max - mpc.{name}_min >= {2 * m:.3g} m, or a "
                              "smaller W")
+
+
+HULL_COLUMNS = ("plane", "c", "p", "v")
+
+
+@functools.lru_cache(maxsize=64)
+def _read_hull(path: str, stamp: tuple) -> tuple:
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows or tuple(c.strip() for c in rows[0]) != HULL_COLUMNS:
+        raise ValueError(f"{path}: expected the header {','.join(HULL_COLUMNS)}")
+    planes = ([], [])
+    for k, r in enumerate(rows[1:], start=2):
+        try:
+            plane, *vals = (float(v) for v in r)
+        except ValueError:
+            raise ValueError(f"{path}, line {k}: expected four numbers") from None
+        if plane not in (1.0, 2.0) or len(vals) != 3 or not np.all(np.isfinite(vals)):
+            raise ValueError(f"{path}, line {k}: expected plane 1 or 2 and three finite numbers "
+                             "c [m], p [m], v [m/s]")
+        planes[int(plane) - 1].append(vals)
+    if not (planes[0] and planes[1]):
+        raise ValueError(f"{path}: every plane (1 and 2) needs at least one point")
+    return tuple(np.array(p, np.float64) for p in planes)
+
+
+def read_hull(path) -> tuple:
+    """The points of a hull W from a CSV file with the columns plane (1 or 2), c [m], p [m],
+    v [m/s] (what ``hlip-sweep whull`` writes), as two (N_i, 3) arrays.  ValueError naming the
+    file and line when it is missing or malformed."""
+    path = os.fspath(path)
+    try:
+        st = os.stat(path)
+    except OSError:
+        raise ValueError(f"{path}: file not found (a relative path is read from the current "
+                         "directory)") from None
+    return _read_hull(path, (st.st_mtime_ns, st.st_size))
+
+
+def symmetric_hull_vertices(samples) -> np.ndarray:
+    """The vertices of conv(±samples) (N, 3) that lie in one half-space of each opposite pair
+    (the hull is symmetric, so these and their negatives span it): the few points a hull W file
+    needs to hold the support of every sample.  Samples spanning fewer than three dimensions
+    are returned as they are (their support is the same)."""
+    from scipy.spatial import ConvexHull, QhullError
+    S = np.asarray(samples, np.float64)
+    both = np.concatenate([S, -S])
+    try:
+        idx = ConvexHull(both).vertices
+    except (QhullError, ValueError):
+        return S
+    V = both[idx]
+    key = np.round(V, 12)
+    keep = [i for i, v in enumerate(key)
+            if not any(np.array_equal(-v, key[j]) for j in range(i))]
+    return V[keep]
 
 
 def frame_weights(dx, dy, heading, frame_heading):

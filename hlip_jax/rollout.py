@@ -113,7 +113,8 @@ def tube_of(cfg: ScenarioConfig, A, B) -> robust.Tightening:
     if not m.robust:
         return robust.NONE
     w = np.array([[m.w_c_1, m.w_p_1, m.w_v_1], [m.w_c_2, m.w_p_2, m.w_v_2]])
-    return robust.tightening(A, B, stepping_gain(cfg), w, m.w_frame)
+    hull = robust.read_hull(m.w_hull_file) if m.w_shape == "hull" else None
+    return robust.tightening(A, B, stepping_gain(cfg), w, m.w_frame, hull)
 
 
 def n_steps_of(cfg: ScenarioConfig) -> int:

@@ -508,6 +508,34 @@ def _coverage_groups(out_dir, field: str | None) -> list[dict]:
     return list(groups.values())
 
 
+def disturbance_samples(out_dir, chosen=None):
+    """The error-system disturbances d of a results directory's runs, pooled per plane, as
+    coverage.csv's W sees them (counted steps, the steps of pushes left out): (frame,
+    [(N, n) plane 1, (N, n) plane 2], runs used).  ``chosen``: scenario indices (None: all).
+    StoreError when the runs are in different analysis frames or none is left."""
+    chosen = None if chosen is None else set(int(i) for i in chosen)
+    configs = read_manifest(out_dir)["configs"]
+    frames, parts, runs = set(), ([], []), 0
+    for f in chunk_files(out_dir):
+        z = load_chunk(f)
+        for j, i in enumerate(z["index"]):
+            if (chosen is not None and int(i) not in chosen) or not steplog.alive(z["valid"][j]).any():
+                continue
+            cfg = sweep_mod.config_from_dict(configs[int(i)])
+            _, _, frame, run = _run_samples(z, j, cfg)
+            frames.add(frame)
+            keep = run.dmask & ~run.dpush
+            for p in (0, 1):
+                parts[p].append(np.asarray(run.d, np.float64)[keep, p, :])
+            runs += 1
+    if len(frames) > 1:
+        raise StoreError(f"the runs are analysed in frames {sorted(frames)}; choose runs of one "
+                         "frame (one gain in both planes gives the heading frame)")
+    if not runs or not all(np.concatenate(p).size for p in parts):
+        raise StoreError("no disturbance samples: no chosen run has two counted steps")
+    return frames.pop(), [np.concatenate(p) for p in parts], runs
+
+
 def coverage_rows(out_dir, q: float = COVERAGE_Q, train_on: tuple | None = None) -> list[dict]:
     """coverage.csv rows of a results directory (:func:`hlip_jax.coverage.group_rows`) per
     group of :func:`_coverage_groups`.  Default split: replicates are the values of the swept

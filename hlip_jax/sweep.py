@@ -348,6 +348,7 @@ def _check_tube(cfg: C.ScenarioConfig, where: str) -> None:
     if not cfg.gain.with_position:
         raise SweepError(f"{where}: gain.with_position: false with mpc.robust = true; allowed: "
                          "true (without the c term the COM position error has no bounded E)")
+    _check_w_shape(m, where)
     try:
         A, B = rollout._cached_s2s(cfg.hlip)
         t = rollout.tube_of(cfg, A, B)
@@ -355,6 +356,26 @@ def _check_tube(cfg: C.ScenarioConfig, where: str) -> None:
                             m.step_width_max)
     except ValueError as err:
         raise SweepError(f"{where}: {err}") from None
+
+
+def _check_w_shape(m: C.MPCConfig, where: str) -> None:
+    """A hull W takes its points from mpc.w_hull_file (readable, well formed) and no box
+    half-widths; a box W reads no file."""
+    box = [f"w_{q}_{i}" for i in (1, 2) for q in "cpv"]
+    if m.w_shape == "box":
+        if m.w_hull_file:
+            raise SweepError(f"{where}: mpc.w_hull_file: {m.w_hull_file!r} is read with "
+                             "mpc.w_shape = 'hull' only; allowed with w_shape = 'box': ''")
+        return
+    for f in box:
+        if getattr(m, f) != 0.0:
+            raise SweepError(f"{where}: mpc.{f}: {getattr(m, f):g} with mpc.w_shape = 'hull' "
+                             "(the hull's points are W); allowed: 0")
+    from hlip_jax import robust
+    try:
+        robust.read_hull(m.w_hull_file)
+    except ValueError as err:
+        raise SweepError(f"{where}: mpc.w_hull_file: {err}") from None
 
 
 @functools.lru_cache(maxsize=256)

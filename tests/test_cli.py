@@ -698,3 +698,41 @@ def test_wbox_prints_sweep_lines_of_the_w_box(tmp_path, capsys):
         assert code == 2 and msg in err
     code, _, err = cli(capsys, "wbox", tmp_path)
     assert code == 2 and "coverage.csv" in err
+
+
+def test_whull_writes_the_hull_w_a_sweep_reads(tmp_path, tiny_sweep, capsys, fake_loop):
+    """`whull` pools the runs' disturbances, writes the vertices of their symmetric hull
+    (every support of the samples kept, 1e-8: the file's 9 significant digits) and prints
+    [base.mpc] lines that a tube sweep accepts; bad input exits 2 and nothing is overwritten."""
+    import tomllib
+
+    import numpy as np
+
+    from hlip_jax import robust, store, sweep
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    hull = tmp_path / "w" / "hull.csv"
+    code, text, err = cli(capsys, "whull", out, "--out", hull, "--scenarios", "circle")
+    assert code == 0, err
+    names = [c["name"] for c in store.read_manifest(out)["configs"]]
+    chosen = [i for i, n in enumerate(names) if "circle" in n]
+    _, samples, runs = store.disturbance_samples(out, chosen)
+    assert runs == len(chosen) == 2
+    points = robust.read_hull(hull)
+    D = np.random.default_rng(0).normal(size=(2000, 3))
+    for S, V in zip(samples, points):
+        np.testing.assert_allclose(np.abs(V @ D.T).max(0), np.abs(S @ D.T).max(0), atol=1e-8)
+    mpc = tomllib.loads(text)["base"]["mpc"]
+    assert mpc["w_shape"] == "hull" and mpc["w_hull_file"] == str(hull)
+    lines = "".join(f'{k} = "{v}"\n' for k, v in mpc.items())
+    sc = sweep.parse_sweep('name = "t"\n[base]\nplant = "hlip"\n[base.mpc]\nrobust = true\n' + lines
+                           + '[[paths]]\nname = "l"\nshape = "line"\n').scenarios[0]
+    assert sc.mpc.w_shape == "hull"
+    before = hull.read_bytes()
+    for args, msg in ((["--out", hull], "exists"), (["--out", tmp_path / "x.csv", "--scenarios", "zz"],
+                                                     "matches none")):
+        code, _, err = cli(capsys, "whull", out, *args)
+        assert code == 2 and msg in err and "Traceback" not in err
+    assert hull.read_bytes() == before
+    code, _, err = cli(capsys, "whull", tmp_path / "nope", "--out", tmp_path / "y.csv")
+    assert code == 2 and "not found" in err

@@ -166,3 +166,85 @@ def test_w_from_coverage_encloses_the_chosen_groups_symmetrically():
 def test_w_from_coverage_refuses(rows, kwargs, match):
     with pytest.raises(ValueError, match=match):
         robust.w_from_coverage(rows, **kwargs)
+
+
+# --- a W that is not a box: the symmetric hull of points ----------------------------------------
+def _corners(w):
+    return np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)]) * w
+
+
+def test_hull_of_box_corners_gives_the_box_tables():
+    # conv(±corners) is the box: rows F_m equal (the same sums, 1e-15); the last row bounds
+    # F_∞ from above, within the box's outer mRPI bound's ε (1e-5) of it
+    A, B, K, A_cl = _plane()
+    w = np.array([0.01, 0.02, 0.05])
+    box = robust.plane_bounds(A_cl, K, w)
+    hull = robust.hull_bounds(A_cl, K, _corners(w))
+    np.testing.assert_allclose(hull[:-1], box[:-1], atol=1e-15, rtol=0)
+    np.testing.assert_allclose(hull[-1], box[-1], atol=1e-5)
+    gain = np.stack([K, K])
+    t_box = robust.tightening(A, B, gain, np.stack([w, w]), "heading")
+    t_hull = robust.tightening(A, B, gain, np.zeros((2, 3)), "heading", [_corners(w)] * 2)
+    np.testing.assert_allclose(t_hull.e_u, t_box.e_u, atol=1e-5)
+    np.testing.assert_allclose(t_hull.e_c, t_box.e_c, atol=1e-5)
+
+
+def test_hull_rows_are_attained_and_the_last_row_bounds_them():
+    # row m is attained by the disturbance sequence that takes, at each l, the point ±s_j of
+    # largest s·(A_cl^{m-1-l})ᵀ g (1e-12); the last row is at least every row and at most
+    # 1e-10 above the series summed to 2000 terms (its tail bound, radius·‖g‖·L·M·a/(1−a)
+    # with a = ‖A_clᴸ‖₂ ≤ 1e-12, is below that here)
+    A, B, K, A_cl = _plane()
+    S = np.random.default_rng(5).normal(size=(40, 3)) * [0.01, 0.03, 0.06]
+    table = robust.hull_bounds(A_cl, K, S, steps=12)
+    for m in range(1, 11):
+        for col, g in enumerate((np.eye(3)[0], K)):
+            e = np.zeros(3)
+            for l in range(m):
+                v = S @ (np.linalg.matrix_power(A_cl, m - 1 - l).T @ g)
+                e = A_cl @ e + np.sign(v[np.argmax(np.abs(v))]) * S[np.argmax(np.abs(v))]
+            assert abs(g @ e - table[m, col]) < 1e-12
+    long = sum(np.abs(S @ (np.linalg.matrix_power(A_cl, l).T @ np.stack([np.eye(3)[0], K]).T)).max(0)
+               for l in range(2000))
+    assert np.all(table[-1] >= table[:-1].max(axis=0))
+    assert np.all(table[-1] >= long - 1e-15) and np.all(table[-1] <= long + 1e-10)
+
+
+def test_symmetric_hull_vertices_keep_every_support():
+    S = np.random.default_rng(6).normal(size=(300, 3))
+    V = robust.symmetric_hull_vertices(S)
+    assert len(V) < len(S)
+    D = np.random.default_rng(7).normal(size=(5000, 3))
+    np.testing.assert_allclose(np.abs(V @ D.T).max(0), np.abs(S @ D.T).max(0), atol=1e-12, rtol=0)
+
+
+def test_read_hull_reads_and_refuses(tmp_path):
+    f = tmp_path / "w.csv"
+    f.write_text("plane,c,p,v\n1,0.01,0.02,0.03\n2,-0.01,0,0.5\n2,0.02,0.01,-0.1\n")
+    p1, p2 = robust.read_hull(f)
+    np.testing.assert_array_equal(p1, [[0.01, 0.02, 0.03]])
+    assert p2.shape == (2, 3)
+    for text, match in (("c,p,v\n1,2,3\n", "header"), ("plane,c,p,v\n1,0,0\n", "line 2"),
+                        ("plane,c,p,v\n3,0,0,0\n2,0,0,0\n", "line 2"),
+                        ("plane,c,p,v\n1,0,nan,0\n2,0,0,0\n", "line 2"),
+                        ("plane,c,p,v\n1,0,0,0\n", "every plane")):
+        bad = tmp_path / f"bad{abs(hash(text))}.csv"
+        bad.write_text(text)
+        with pytest.raises(ValueError, match=match):
+            robust.read_hull(bad)
+    with pytest.raises(ValueError, match="not found"):
+        robust.read_hull(tmp_path / "missing.csv")
+
+
+def test_sweep_checks_the_w_shape(tmp_path):
+    f = tmp_path / "w.csv"
+    f.write_text("plane,c,p,v\n1,0.01,0.02,0.03\n2,0.01,0.02,0.03\n")
+    head = 'name = "t"\n[base]\nplant = "hlip"\n[base.mpc]\nrobust = true\n'
+    tail = '\n[[paths]]\nname = "l"\nshape = "line"\n'
+    ok = sweep.parse_sweep(head + f'w_shape = "hull"\nw_hull_file = "{f}"' + tail)
+    assert ok.scenarios[0].mpc.w_shape == "hull"
+    for body, match in ((f'w_shape = "hull"\nw_hull_file = "{f}"\nw_c_1 = 0.01', "mpc.w_c_1"),
+                        (f'w_hull_file = "{f}"', "mpc.w_hull_file"),
+                        (f'w_shape = "hull"\nw_hull_file = "{tmp_path / "no.csv"}"', "mpc.w_hull_file")):
+        with pytest.raises(sweep.SweepError, match=match):
+            sweep.parse_sweep(head + body + tail)
