@@ -58,8 +58,8 @@ class MPCConfig:
     robust: bool = spec(False, doc="tube MPC: tighten step limits by K E and keep-out discs by E, "
                         "E = mRPI(A + B K, W) of the W below (hlip_jax.robust)",
                         choices=(True, False))
-    w_frame: str = spec("heading", doc="frame of the W box: plane 1/2 = sagittal/lateral ('heading') "
-                        "or world x/y ('world')", choices=("heading", "world"))
+    w_frame: str = spec("heading", doc="frame of W (box or hull): plane 1/2 = sagittal/lateral "
+                        "('heading') or world x/y ('world')", choices=("heading", "world"))
     w_c_1: float = spec(0.0, 0.0, 1.0, "W half-width on c, plane 1 (robust only)", "m")
     w_p_1: float = spec(0.0, 0.0, 1.0, "W half-width on p, plane 1 (robust only)", "m")
     w_v_1: float = spec(0.0, 0.0, 5.0, "W half-width on v, plane 1 (robust only)", "m/s")

@@ -253,6 +253,20 @@ def test_rho_previous_starts_from_the_previous_ticks_step_size(cassie, terms_fn)
     np.testing.assert_allclose(prev.tau, default.tau, atol=1e-4, rtol=0)
 
 
+def _same_cold_and_warm_solves(cassie, problem, settings_a, settings_b):
+    """The CLF-QP of ``problem`` (meas, des, cond, contact, lo, hi) solved cold, then warm from
+    that solution, under two settings: the same statuses and iterations, torques within
+    1e-9 N m (float64)."""
+    runs = []
+    for st in (settings_a, settings_b):
+        r0 = clfqp.solve(*problem, control.STAND_GAINS, control.warm_zeros(cassie, jnp.float64), st)
+        r1 = clfqp.solve(*problem, control.STAND_GAINS, r0.warm, st)
+        runs.append((r0, r1))
+    for a, b in zip(*runs):
+        np.testing.assert_allclose(a.tau, b.tau, atol=1e-9, rtol=0)
+        assert int(a.status) == int(b.status) and int(a.iterations) == int(b.iterations)
+
+
 def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
     # cassie.qp_linsys = "inverse" (K⁻¹ formed once per factorisation, then products) against
     # the Cholesky solves of every iteration, with the tick's settings, cold and warm: the
@@ -260,17 +274,9 @@ def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
     # rounding differs, ~1e-13 relative per iteration, amplified by at most a few hundred
     # iterations); and at tight tolerance both meet OSQP's solution to 1e-4 N m as above
     meas, des, cond, contact, lo, hi = _left_foot_problem(cassie, terms_fn, seed=7)
-    warm = control.warm_zeros(cassie, jnp.float64)
     s = clfqp.DEFAULT_SETTINGS
-    runs = {}
-    for linsys in ("cholesky", "inverse"):
-        st = s._replace(linsys=linsys)
-        r0 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, warm, st)
-        r1 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, r0.warm, st)
-        runs[linsys] = (r0, r1)
-    for a, b in zip(runs["cholesky"], runs["inverse"]):
-        np.testing.assert_allclose(a.tau, b.tau, atol=1e-9, rtol=0)
-        assert int(a.status) == int(b.status) and int(a.iterations) == int(b.iterations)
+    _same_cold_and_warm_solves(cassie, (meas, des, cond, contact, lo, hi),
+                               s._replace(linsys="cholesky"), s._replace(linsys="inverse"))
     prob = clfqp.build(meas, des, cond, contact, lo, hi, control.STAND_GAINS)
     tight = qp.Settings(eps_abs=1e-9, eps_rel=1e-9, max_iter=200000, linsys="inverse")
     x = np.asarray(qp.solve(prob.P, prob.q, prob.A, prob.l, prob.u, settings=tight).x)
@@ -285,18 +291,9 @@ def test_fused_kernel_gives_the_same_torques(cassie, terms_fn):
     # tick's settings, cold and warm: the same iterations and status, torques within 1e-9 N m
     # (float64: the kernel sums in another order, ~1e-16 relative per operation, amplified by
     # at most the 150-iteration budget)
-    meas, des, cond, contact, lo, hi = _left_foot_problem(cassie, terms_fn, seed=7)
-    warm = control.warm_zeros(cassie, jnp.float64)
+    problem = _left_foot_problem(cassie, terms_fn, seed=7)
     s = clfqp.DEFAULT_SETTINGS._replace(linsys="inverse")
-    runs = {}
-    for kernel in ("xla", "fused"):
-        st = s._replace(block_kernel=kernel)
-        r0 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, warm, st)
-        r1 = clfqp.solve(meas, des, cond, contact, lo, hi, control.STAND_GAINS, r0.warm, st)
-        runs[kernel] = (r0, r1)
-    for a, b in zip(runs["xla"], runs["fused"]):
-        np.testing.assert_allclose(a.tau, b.tau, atol=1e-9, rtol=0)
-        assert int(a.status) == int(b.status) and int(a.iterations) == int(b.iterations)
+    _same_cold_and_warm_solves(cassie, problem, s, s._replace(block_kernel="fused"))
 
 
 def test_chatter_term_adds_a_proximal_cost_and_is_inert_at_zero(cassie, terms_fn):
