@@ -26,7 +26,10 @@ program run by several devices of this process (:func:`hlip_jax.rollout.run`'s p
 loops: their name says how many) is stored with its device split and compiled for the
 arguments' placement; programs XLA partitions over several GPUs are not given to the cache
 (the rollout calls them directly).  The directory is ``<compilation cache>/traces``; the CLI's
-``--no-compile-cache`` turns both caches off.  Entries are Python pickles: like JAX's own
+``--no-compile-cache`` turns both caches off.  It holds at most :data:`MAX_BYTES` of entries
+(about 1 MB per sweep shape): storing a new one evicts the least recently used (a load counts
+as a use).  JAX's compiled executables beside it are not bounded (JAX's own bound needs the
+``filelock`` package).  Entries are Python pickles: like JAX's own
 compilation cache, the directory must be writable by its user only.
 """
 
@@ -48,6 +51,7 @@ import numpy as np
 from jax import export as jax_export
 
 SUFFIX = ".hlotrace"
+MAX_BYTES = 512 * 2**20      # entries beyond this total are evicted, least recently used first
 REFUSED = ".unexportable"    # marker of a program jax.export refused
 #: libraries whose version is part of every key (missing ones count as "absent")
 LIBRARIES = ("jax", "jaxlib", "numpy", "mujoco", "mujoco-mjx")
@@ -218,9 +222,14 @@ def _load(file: Path) -> Optional[Program]:
         return None
     try:
         blob, out_tree = pickle.loads(file.read_bytes())
-        return _program_of(jax_export.deserialize(bytearray(blob)), out_tree)
+        prog = _program_of(jax_export.deserialize(bytearray(blob)), out_tree)
     except Exception:
         return None
+    try:
+        os.utime(file)                      # a use: the entry is the most recent for eviction
+    except OSError:
+        pass
+    return prog
 
 
 def _export(fn: Callable, static, args) -> tuple[Any, Any, bytes]:
@@ -253,6 +262,27 @@ def _store(file: Path, blob: bytes) -> None:
             Path(tmp).unlink(missing_ok=True)
 
 
+def _evict(keep: Path, budget: int) -> None:
+    """Delete the least recently used entries of ``keep``'s directory (by modification time)
+    until the entries total at most ``budget`` bytes; ``keep`` (just written) stays.  Best
+    effort: entries another process removes or holds open are skipped."""
+    entries = []
+    for f in keep.parent.glob("*" + SUFFIX):
+        try:
+            st = f.stat()
+        except OSError:
+            continue
+        entries.append((st.st_mtime_ns, st.st_size, f))
+    total = sum(size for _, size, _ in entries)
+    for _, size, f in sorted(entries):
+        if total <= budget:
+            return
+        if f == keep:
+            continue
+        f.unlink(missing_ok=True)
+        total -= size
+
+
 def _program(fn: Callable, static, args, k: str) -> Optional[Program]:
     """The program of key ``k``: from memory, from disk, or traced now and stored; None when
     jax.export refuses it (marked on disk, so later runs do not try again)."""
@@ -269,6 +299,7 @@ def _program(fn: Callable, static, args, k: str) -> Optional[Program]:
             _store(_dir / (k + REFUSED), b"")
             return None
         _store(file, blob)
+        _evict(file, MAX_BYTES)
         prog = _program_of(exported, out_tree)
     _loaded[k] = prog
     return prog

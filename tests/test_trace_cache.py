@@ -8,6 +8,8 @@ round-off.  (On a GPU, repeatability also needs XLA's deterministic operations:
 :mod:`hlip_jax.xla_flags`.)
 """
 
+import os
+
 import numpy as np
 import pytest
 
@@ -82,7 +84,29 @@ def test_rerun_loads_the_traced_loop_and_gives_the_same_numbers(cache, monkeypat
 def test_another_setting_is_another_entry(cache):
     _run(False)
     _run(False, max_iter=123)
-    assert len(list(cache.glob("*" + trace_cache.SUFFIX))) == 2
+    entries = sorted(cache.glob("*" + trace_cache.SUFFIX), key=lambda f: f.stat().st_mtime_ns)
+    assert len(entries) == 2
+    # a budget of one entry evicts the older (the newer was just written and stays)
+    trace_cache._evict(entries[1], entries[1].stat().st_size)
+    assert list(cache.glob("*" + trace_cache.SUFFIX)) == [entries[1]]
+
+
+def test_eviction_keeps_the_most_recently_used_within_the_budget(tmp_path):
+    # five entries of 100 bytes, used at times 1..5 (mtime); a load of #1 makes it the newest
+    files = [tmp_path / f"e{i}{trace_cache.SUFFIX}" for i in range(5)]
+    for i, f in enumerate(files):
+        f.write_bytes(b"x" * 100)
+        os.utime(f, ns=(10**9 * (i + 1),) * 2)
+    os.utime(files[1], ns=(10**9 * 9,) * 2)
+    (tmp_path / ("m" + trace_cache.REFUSED)).write_bytes(b"")    # markers are not entries
+    trace_cache._evict(files[4], 250)
+    left = sorted(f.name for f in tmp_path.glob("*" + trace_cache.SUFFIX))
+    assert left == ["e1.hlotrace", "e4.hlotrace"]                   # the two most recent
+    assert (tmp_path / ("m" + trace_cache.REFUSED)).exists()
+    trace_cache._evict(files[0], 10**6)             # within the budget: nothing goes
+    assert len(list(tmp_path.glob("*" + trace_cache.SUFFIX))) == 2
+    trace_cache._evict(files[1], 0)                 # the kept entry stays over any budget
+    assert sorted(f.name for f in tmp_path.glob("*" + trace_cache.SUFFIX)) == ["e1.hlotrace"]
 
 
 def test_a_damaged_entry_is_traced_again(cache, monkeypatch):
