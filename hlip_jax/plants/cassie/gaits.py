@@ -22,7 +22,7 @@ PRESETS: dict[str, dict[str, object]] = {
         "mpc.step_width_min": 0.1296,
         "gain.type": "lqr",
         "gain.with_position": True,
-        "gain.q_c": 0.05,
+        "gain.q_c": 0.1,
         "gain.q_p": 1.0,
         "gain.q_v": 0.1766,
         "gain.r": 4.6765,
