@@ -502,7 +502,7 @@ def cmd_whull(args) -> int:
     print("[base.mpc]")
     print(f'w_frame = "{frame}"')
     print('w_shape = "hull"')
-    print(f'w_hull_file = "{out}"')
+    print(f'w_hull_file = "{out.resolve()}"')
     return EXIT_OK
 
 

@@ -72,7 +72,7 @@ class MPCConfig:
                         choices=("box", "hull"))
     w_hull_file: str = spec("", doc="CSV file of a hull W's points, columns plane (1 or 2), c, p, "
                             "v, in the frame mpc.w_frame; read with w_shape = 'hull' only (a "
-                            "relative path from the current directory)")
+                            "relative path in a sweep file is read from that file's directory)")
     qp_max_iter: int = spec(400, 10, 100000, "ADMM iteration cap per MPC solve")
     qp_eps: float = spec(1e-4, 1e-10, 1e-1, "ADMM absolute/relative tolerance")
 

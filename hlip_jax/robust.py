@@ -210,8 +210,7 @@ def read_hull(path) -> tuple:
     try:
         st = os.stat(path)
     except OSError:
-        raise ValueError(f"{path}: file not found (a relative path is read from the current "
-                         "directory)") from None
+        raise ValueError(f"{path}: file not found") from None
     return _read_hull(path, (st.st_mtime_ns, st.st_size))
 
 

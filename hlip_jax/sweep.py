@@ -1022,10 +1022,47 @@ def _read_sweep_file(p: Path, source: str) -> str:
         raise SweepError(f"{source}: cannot read the sweep file: {err}") from None
 
 
+#: fields that name a file; a relative path in a sweep file is read from that file's directory
+FILE_FIELDS = ("mpc.w_hull_file",)
+
+
+def _anchored(value, base: Path):
+    """``value`` (a path string, or a list of them) with relative paths joined to ``base``;
+    anything else as it is (its type is checked where the field is validated)."""
+    if isinstance(value, list):
+        return [_anchored(v, base) for v in value]
+    if isinstance(value, str) and value and not Path(value).is_absolute():
+        return str(base / value)
+    return value
+
+
+def _anchor_files(doc: dict, base: Path) -> None:
+    """Resolve the relative :data:`FILE_FIELDS` of a sweep document against ``base`` (the
+    file's directory), in place: in ``[base]``, in the paths' overrides and in grid axes."""
+    tables = [doc.get("base")] + [e.get("overrides") for e in doc.get("paths", [])
+                                   if isinstance(e, dict)]
+    for field in FILE_FIELDS:
+        section, name = field.split(".")
+        for t in tables:
+            sub = t.get(section) if isinstance(t, dict) else None
+            if isinstance(sub, dict) and name in sub:
+                sub[name] = _anchored(sub[name], base)
+        grid = doc.get("grid") if isinstance(doc.get("grid"), dict) else {}
+        for axes in [grid.get("product")] + list(_as_list(grid.get("zip"))):
+            if isinstance(axes, dict) and field in axes:
+                axes[field] = _anchored(axes[field], base)
+
+
+def _as_list(v) -> list:
+    return v if isinstance(v, list) else [] if v is None else [v]
+
+
 def _resolve_extends(p: Path, source: str, chain: tuple) -> tuple[dict, str]:
-    """(document, text) of sweep file ``p`` with its ``extends`` chain merged in."""
+    """(document, text) of sweep file ``p`` with its ``extends`` chain merged in; each file's
+    relative :data:`FILE_FIELDS` are read from its own directory."""
     text = _read_sweep_file(p, source)
     doc = _loads(text, source)
+    _anchor_files(doc, p.parent)
     parent = doc.pop("extends", None)
     if parent is None:
         return doc, text

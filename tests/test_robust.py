@@ -11,6 +11,8 @@ does violate it on the same seeds.
 """
 
 
+from pathlib import Path
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -248,3 +250,25 @@ def test_sweep_checks_the_w_shape(tmp_path):
                         (f'w_shape = "hull"\nw_hull_file = "{tmp_path / "no.csv"}"', "mpc.w_hull_file")):
         with pytest.raises(sweep.SweepError, match=match):
             sweep.parse_sweep(head + body + tail)
+
+
+def test_a_relative_hull_file_is_read_from_the_sweep_files_directory(tmp_path, monkeypatch):
+    # in [base], in a path's overrides, in a grid axis, and through extends (each file's own
+    # directory), whatever the working directory
+    (tmp_path / "a" / "data").mkdir(parents=True)
+    (tmp_path / "b").mkdir()
+    for name in ("w.csv", "v.csv"):
+        (tmp_path / "a" / "data" / name).write_text("plane,c,p,v\n1,0.01,0.02,0.03\n2,0.01,0.02,0.03\n")
+    (tmp_path / "a" / "parent.toml").write_text(
+        'name = "p"\n[base]\nplant = "hlip"\n[base.mpc]\nrobust = true\nw_shape = "hull"\n'
+        'w_hull_file = "data/w.csv"\n[[paths]]\nname = "l"\nshape = "line"\n'
+        '[[paths]]\nname = "m"\nshape = "line"\n[paths.overrides.mpc]\nw_hull_file = "data/v.csv"\n')
+    (tmp_path / "a" / "grid.toml").write_text(
+        'extends = "parent"\n[grid.product]\n"mpc.w_hull_file" = ["data/w.csv", "data/v.csv"]\n')
+    (tmp_path / "b" / "child.toml").write_text('extends = "../a/parent"\n')
+    monkeypatch.chdir(tmp_path / "b")
+    files = lambda sw: sorted({Path(c.mpc.w_hull_file).name for c in sw.scenarios})
+    for f in ("a/parent.toml", "b/child.toml", "a/grid.toml"):
+        sw = sweep.load_sweep(tmp_path / f)
+        assert files(sw) == ["v.csv", "w.csv"]
+        assert all(Path(c.mpc.w_hull_file).is_absolute() for c in sw.scenarios)
