@@ -174,9 +174,8 @@ def _loop(static) -> str:
 
 def _variant(static, rho_start: str = "previous") -> str:
     """'<CLF-QP loop> loop[, <linsys>][, fused kernel][, ρ from 0.1 every tick], <physics>
-    physics' of a
-    build's static settings and its CLF-QP's starting step size (each named where it is not
-    the default)."""
+    physics' of a build's static settings and its CLF-QP's starting step size (each named
+    where it is not the default)."""
     linsys = static.plant_settings.qp.linsys
     solve = "" if linsys == "cholesky" else f", {linsys}"
     if static.plant_settings.qp.block_kernel == "fused":
