@@ -463,21 +463,21 @@ def segment_length(n_steps: int) -> int:
     return max(1, math.ceil(n_steps / 20))
 
 
-def _compile_ahead(start, segment, batch: Scenario, static: Static, L: int) -> None:
+def _compile_ahead(start, segment, batch: Scenario, static: Static, L: int,
+                   split: Optional[jax.sharding.NamedSharding]) -> None:
     """Where the trace cache serves the loop (:mod:`hlip_jax.trace_cache`): trace or load the
     ``start`` and ``segment`` programs (the segment's carry shapes from the start's program)
-    and compile both at once."""
+    and compile both at once.  ``split``: the batch's sharding where per-device programs run
+    it (the carry is split the same way, the step indices given whole), else None."""
     shapes = trace_cache.out_shapes(start, static, batch)
     if shapes is None:
         return
     carry, ks = shapes[0], jax.ShapeDtypeStruct((L,), jax.dtypes.canonicalize_dtype(jnp.int_))
-    mesh = _mesh_of(batch)
-    if mesh is not None:      # the carry split as the batch is, the step indices whole
-        split = jax.tree.leaves(batch)[0].sharding
+    if split is not None:
         carry = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=split),
                              carry)
         ks = jax.ShapeDtypeStruct(ks.shape, ks.dtype, sharding=jax.sharding.NamedSharding(
-            mesh, jax.sharding.PartitionSpec()))
+            split.mesh, jax.sharding.PartitionSpec()))
     trace_cache.compile_together([(start, static, (batch,)),
                                   (segment, static, (batch, carry, ks))])
 
@@ -489,16 +489,6 @@ def _mesh_of(batch) -> Optional[jax.sharding.Mesh]:
     if isinstance(sharding, jax.sharding.NamedSharding) and sharding.mesh.size > 1:
         return sharding.mesh
     return None
-
-
-def _split_as(tree, batch):
-    """``tree`` (per-scenario arrays) split over the devices as ``batch`` is: XLA returns a
-    per-device program's empty outputs whole on every device, and the next segment's
-    executable, compiled ahead, expects every carry leaf split (no copy where it already
-    is)."""
-    if _mesh_of(batch) not in _per_mesh:
-        return tree
-    return jax.device_put(tree, jax.tree.leaves(batch)[0].sharding)
 
 
 def _per_device(fn, mesh, replicated: int = 0):
@@ -577,16 +567,21 @@ def run(batch: Scenario, static: Static):
     boundary only splits the scan."""
     mesh = _mesh_of(batch)
     whole, start, segment = _programs(mesh)
-    call = trace_cache.call if mesh is None or mesh in _per_mesh else _jitted_call
+    per_device = mesh is not None and mesh in _per_mesh
+    call = trace_cache.call if mesh is None or per_device else _jitted_call
     if not static.progress:
         return call(whole, static, batch)
     K, L = static.n_steps, segment_length(static.n_steps)
+    # per-device programs: XLA returns their empty outputs whole on every device, and the
+    # segment's executable, compiled ahead, expects every carry leaf split as the batch is
+    split = jax.tree.leaves(batch)[0].sharding if per_device else None
     if call is trace_cache.call:
-        _compile_ahead(start, segment, batch, static, L)
+        _compile_ahead(start, segment, batch, static, L, split)
     carry, ok0 = call(start, static, batch)
     outs = []
     for k0 in range(0, K, L):
-        carry = _split_as(carry, batch)
+        if split is not None:
+            carry = jax.device_put(carry, split)       # no copy where already split
         carry, out = call(segment, static, batch, carry, jnp.arange(k0, k0 + L))
         outs.append(out)
         jax.block_until_ready(carry)
