@@ -98,13 +98,10 @@ def plane_bounds(A_cl, K, w, steps: int = STEPS) -> np.ndarray:
     return out
 
 
-def _tail_bound(A_cl, D, radius: float, L: int) -> np.ndarray:
+def _tail_bound(D, radius: float, L: int, a: float, M: float) -> np.ndarray:
     """Upper bound of Σ_{l ≥ L} h_W((A_clˡ)ᵀ d) for the rows d of ``D``, W in the ball of
     ``radius``: with a = ‖A_clᴸ‖₂ < 1 and M = max_{i<L} ‖A_clⁱ‖₂, every ‖A_clˡ‖₂ ≤ M a^⌊l/L⌋,
     so the tail is at most radius ‖d‖ L M a / (1 − a)."""
-    powers = [np.linalg.matrix_power(A_cl, i) for i in range(L + 1)]
-    a = np.linalg.norm(powers[L], 2)
-    M = max(np.linalg.norm(P, 2) for P in powers[:L])
     return radius * np.linalg.norm(D, axis=1) * L * M * a / (1.0 - a)
 
 
@@ -117,15 +114,19 @@ def hull_bounds(A_cl, K, points, steps: int = STEPS, a_max: float = 1e-12,
     D = np.stack([np.eye(3)[0], K])
     h = lambda G: np.abs(S @ G.T).max(axis=0)
     out, total, G, L = np.zeros((steps, 2)), np.zeros(2), D.copy(), 0
-    while L < l_max and (L < steps - 2 or np.linalg.norm(np.linalg.matrix_power(A_cl, L), 2) > a_max):
+    power, M = np.eye(3), 0.0                     # A_clᴸ and max_{i<L} ‖A_clⁱ‖₂
+    a = 1.0
+    while L < l_max and (L < steps - 2 or a > a_max):
         total = total + h(G)
+        M = max(M, a)
         L += 1
-        G = G @ A_cl
+        G, power = G @ A_cl, power @ A_cl
+        a = np.linalg.norm(power, 2)
         if L <= steps - 2:
             out[L] = total
     if L >= l_max:
         raise ValueError("A + B K is not Schur stable on [c, p, v]: no bounded invariant set")
-    out[-1] = total + _tail_bound(A_cl, D, float(np.linalg.norm(S, axis=1).max()), L)
+    out[-1] = total + _tail_bound(D, float(np.linalg.norm(S, axis=1).max()), L, a, M)
     return out
 
 
