@@ -9,10 +9,11 @@ stepping gain K (U ⊖ K E).  Its support is the series
 
     h_E(g) = Σ_{l ≥ 0} h_W((A_clˡ)ᵀ g),
 
-summed until the terms fall below 1e-12 m, with h_W(g) = Σ_j |g_j| w_j for the symmetric box
-of half-widths w_j = max |d_j| (what ``hlip-sweep wbox`` gives the tube), and
-h_W(g) = max_s |d_s · g| for the symmetric hull conv(±d_s): the smallest convex symmetric set
-that holds every sample, so no convex symmetric W model of these samples can give less.
+bounded from above as the tube bounds it (:func:`hlip_jax.robust.hull_bounds`, its last row),
+for the symmetric box of half-widths w_j = max |d_j| (what ``hlip-sweep wbox`` gives the tube;
+the hull of its corners, h_W(g) = Σ_j |g_j| w_j) and for the symmetric hull conv(±d_s),
+h_W(g) = max_s |d_s · g|: the smallest convex symmetric set that holds every sample, so no
+convex symmetric W model of these samples can give less.
 
     python benchmarks/tube_w_shapes.py results/tube_w [results/tube_reach --only "tube"]
 
@@ -24,7 +25,7 @@ import argparse
 
 import numpy as np
 
-from hlip_jax import rollout, store, sweep
+from hlip_jax import robust, rollout, store, sweep
 
 
 def pooled(out_dir: str, only: str | None):
@@ -46,16 +47,13 @@ def pooled(out_dir: str, only: str | None):
     return A_cl, samples, K, runs
 
 
-def support_series(A_cl, g, h_w, tol=1e-12, max_terms=2000):
-    """Σ_l h_W((A_clˡ)ᵀ g) for the directions g (k, 3), until a term is below ``tol``."""
-    total, D = np.zeros(len(g)), np.array(g, np.float64)
-    for _ in range(max_terms):
-        term = h_w(D)
-        total += term
-        if term.max() < tol:
-            return total
-        D = D @ A_cl
-    raise SystemExit("the series did not converge: A + B K is not Schur stable")
+def shape_bounds(A_cl, K, samples) -> dict:
+    """{W: (E along c [m], K E [m])} of the symmetric box and the symmetric hull of
+    ``samples`` (N, 3) for one plane (A_cl (3, 3), K (3,))."""
+    w = np.abs(samples).max(axis=0)
+    corners = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)]) * w
+    return {name: tuple(robust.hull_bounds(A_cl, K, points)[-1])
+            for name, points in (("box", corners), ("symmetric hull", samples))}
 
 
 def main():
@@ -68,12 +66,7 @@ def main():
     for d in a.dirs:
         A_cl, samples, K, runs = pooled(d, a.only)
         for i, S in enumerate(samples):
-            g = np.stack([np.eye(3)[0], K[i]])
-            w = np.abs(S).max(axis=0)
-            shapes = (("box", lambda D: np.abs(D) @ w),
-                      ("symmetric hull", lambda D: np.abs(S @ D.T).max(axis=0)))
-            for name, h in shapes:
-                ec, eu = support_series(A_cl[i], g, h)
+            for name, (ec, eu) in shape_bounds(A_cl[i], K[i], S).items():
                 print(f"| {d} | {i + 1} | {runs} | {len(S)} | {name} | {ec:.3f} | {eu:.3f} |")
 
 
