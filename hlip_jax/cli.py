@@ -428,9 +428,26 @@ def cmd_coverage(args) -> int:
     return EXIT_OK
 
 
-def cmd_s2s(args) -> int:
+def _chosen_scenarios(d: Path, regex: str) -> list[int]:
+    """Indices of the scenarios of results directory ``d`` whose name matches ``regex``
+    (``--scenarios``, Python re.search), after checking its chunks; UserError when the
+    expression is malformed or matches none."""
     import re
 
+    from hlip_jax import store
+    try:
+        pattern = re.compile(regex)
+    except re.error as err:
+        raise UserError(f"--scenarios: not a regular expression ({err})") from None
+    store.check_chunks(d)
+    names = [c["name"] for c in store.read_manifest(d)["configs"]]
+    chosen = [i for i, n in enumerate(names) if pattern.search(n)]
+    if not chosen:
+        raise UserError(f"--scenarios: {regex!r} matches none of the {len(names)} scenarios")
+    return chosen
+
+
+def cmd_s2s(args) -> int:
     import numpy as np
 
     from hlip_jax import s2s_fit, store
@@ -439,15 +456,7 @@ def cmd_s2s(args) -> int:
         raise UserError(f"{d}: results directory not found")
     if args.skip < 0:
         raise UserError(f"--skip: expected an integer >= 0, got {args.skip}")
-    try:
-        pattern = re.compile(args.scenarios)
-    except re.error as err:
-        raise UserError(f"--scenarios: not a regular expression ({err})") from None
-    store.check_chunks(d)
-    names = [c["name"] for c in store.read_manifest(d)["configs"]]
-    chosen = [i for i, n in enumerate(names) if pattern.search(n)]
-    if not chosen:
-        raise UserError(f"--scenarios: {args.scenarios!r} matches none of the {len(names)} scenarios")
+    chosen = _chosen_scenarios(d, args.scenarios)
     log = store.load_log(d)
     try:
         f = s2s_fit.fit(log, chosen, args.skip)
@@ -466,7 +475,6 @@ def cmd_s2s(args) -> int:
 
 def cmd_whull(args) -> int:
     import csv
-    import re
 
     from hlip_jax import robust, store
     d, out = Path(args.dir), Path(args.out)
@@ -474,14 +482,7 @@ def cmd_whull(args) -> int:
         raise UserError(f"{d}: results directory not found")
     if out.exists():
         raise UserError(f"--out: {out} exists; allowed: a new file (nothing is overwritten)")
-    try:
-        pattern = re.compile(args.scenarios)
-    except re.error as err:
-        raise UserError(f"--scenarios: not a regular expression ({err})") from None
-    names = [c["name"] for c in store.read_manifest(d)["configs"]]
-    chosen = [i for i, n in enumerate(names) if pattern.search(n)]
-    if not chosen:
-        raise UserError(f"--scenarios: {args.scenarios!r} matches none of the {len(names)} scenarios")
+    chosen = _chosen_scenarios(d, args.scenarios)
     try:
         frame, samples, runs = store.disturbance_samples(d, chosen)
     except store.StoreError as err:

@@ -481,30 +481,37 @@ def _group_label(cfgs: list) -> str:
     return paths + ("/" + ",".join(same) if same else "")
 
 
+def _alive_runs(out_dir, chosen=None):
+    """(scenario index, config, group key, A + BK per plane, frame, RunSamples) of every run
+    with a valid step (:func:`_run_samples`), in chunk order; ``chosen``: scenario indices to
+    keep (None: all)."""
+    chosen = None if chosen is None else set(int(i) for i in chosen)
+    configs = read_manifest(out_dir)["configs"]
+    for f in chunk_files(out_dir):
+        z = load_chunk(f)
+        for j, i in enumerate(z["index"]):
+            if (chosen is not None and int(i) not in chosen) or not steplog.alive(z["valid"][j]).any():
+                continue
+            cfg = sweep_mod.config_from_dict(configs[int(i)])
+            yield (int(i), cfg, *_run_samples(z, j, cfg))
+
+
 def _coverage_groups(out_dir, field: str | None) -> list[dict]:
     """Runs with a valid step, grouped by path, plant, analysis frame and S2S model (A, B, K);
     the path is left out of the key when ``field`` is "path" (W from some paths, tested on
     the others).  Each group: A_cl, frame, runs, keys (replicate keys, or the values of
     ``field``), configs."""
-    configs = read_manifest(out_dir)["configs"]
     groups: dict = {}
-    for f in chunk_files(out_dir):
-        z = load_chunk(f)
-        for j, i in enumerate(z["index"]):
-            cfg = sweep_mod.config_from_dict(configs[int(i)])
-            if not steplog.alive(z["valid"][j]).any():
-                continue
-            key, Acl, frame, run = _run_samples(z, j, cfg)
-            if field is not None and field not in cfg.swept:
-                raise StoreError(f"coverage train_on: {field!r} is not a swept field of "
-                                 f"scenario {cfg.name!r} (swept: {', '.join(cfg.swept)})")
-            g = groups.setdefault(key[1:] if field == "path" else key,
-                                  {"Acl": Acl, "frame": frame, "runs": [], "keys": [],
-                                   "cfgs": []})
-            g["runs"].append(run)
-            g["keys"].append(cfg.swept[field] if field is not None
-                             else cfg.swept.get("seed", int(i)))
-            g["cfgs"].append(cfg)
+    for i, cfg, key, Acl, frame, run in _alive_runs(out_dir):
+        if field is not None and field not in cfg.swept:
+            raise StoreError(f"coverage train_on: {field!r} is not a swept field of "
+                             f"scenario {cfg.name!r} (swept: {', '.join(cfg.swept)})")
+        g = groups.setdefault(key[1:] if field == "path" else key,
+                              {"Acl": Acl, "frame": frame, "runs": [], "keys": [],
+                               "cfgs": []})
+        g["runs"].append(run)
+        g["keys"].append(cfg.swept[field] if field is not None else cfg.swept.get("seed", i))
+        g["cfgs"].append(cfg)
     return list(groups.values())
 
 
@@ -513,21 +520,13 @@ def disturbance_samples(out_dir, chosen=None):
     coverage.csv's W sees them (counted steps, the steps of pushes left out): (frame,
     [(N, n) plane 1, (N, n) plane 2], runs used).  ``chosen``: scenario indices (None: all).
     StoreError when the runs are in different analysis frames or none is left."""
-    chosen = None if chosen is None else set(int(i) for i in chosen)
-    configs = read_manifest(out_dir)["configs"]
     frames, parts, runs = set(), ([], []), 0
-    for f in chunk_files(out_dir):
-        z = load_chunk(f)
-        for j, i in enumerate(z["index"]):
-            if (chosen is not None and int(i) not in chosen) or not steplog.alive(z["valid"][j]).any():
-                continue
-            cfg = sweep_mod.config_from_dict(configs[int(i)])
-            _, _, frame, run = _run_samples(z, j, cfg)
-            frames.add(frame)
-            keep = run.dmask & ~run.dpush
-            for p in (0, 1):
-                parts[p].append(np.asarray(run.d, np.float64)[keep, p, :])
-            runs += 1
+    for *_, frame, run in _alive_runs(out_dir, chosen):
+        frames.add(frame)
+        keep = run.dmask & ~run.dpush
+        for p in (0, 1):
+            parts[p].append(np.asarray(run.d, np.float64)[keep, p, :])
+        runs += 1
     if len(frames) > 1:
         raise StoreError(f"the runs are analysed in frames {sorted(frames)}; choose runs of one "
                          "frame (one gain in both planes gives the heading frame)")
