@@ -9,7 +9,9 @@ Tracing runs the Python of the whole closed loop (MPC, stepping law, CLF-QP, MJX
 build its jaxpr; JAX does it on every process start, warm compilation cache or not, so it bounds
 how fast a rerun can start.  Lowering turns the jaxpr into StableHLO; compiling is XLA's (what
 the persistent cache saves).  Each repeat traces afresh (the jit's cache is cleared between
-repeats); the figures print as they finish.  ``--unrolled-substeps`` measures the tick as it
+repeats); the figures print as they finish.  "start" is the start program's trace, compile and
+first call together, once per process.  XLA settings come from ``XLA_FLAGS`` as given (the CLI's
+own additions, :mod:`hlip_jax.xla_flags`, are not made here).  ``--unrolled-substeps`` measures the tick as it
 was before its two MJX substeps became a loop (the same MJX step written out twice), for a
 before/after comparison in one process.
 """
@@ -71,7 +73,8 @@ def main(argv=None):
           f"plant {static.plant}, {jax.default_backend()}, "
           f"substeps {'unrolled' if args.unrolled_substeps else 'loop'}", flush=True)
     with jax.default_matmul_precision("highest"):
-        carry, _ = rollout._start_batch(batch, static)
+        carry, _ = _timed("start", lambda: jax.block_until_ready(
+            rollout._start_batch(batch, static)))
         ks = jnp.arange(rollout.segment_length(static.n_steps))
         for r in range(args.repeats):
             print(f"repeat {r + 1}", flush=True)
