@@ -250,12 +250,18 @@ def build_parser() -> argparse.ArgumentParser:
                     "the values, coverage on the others (default: half of the replicate seeds)")
 
     tk = sub.add_parser("ticks", help="per-tick diagnostics of one Cassie scenario of a results "
-                        "directory", description="Re-simulate one scenario of DIR alone with the "
-                        "controller's 1 kHz log and write DIR/ticks/INDEX.npz and INDEX.png "
-                        "(output errors, torques, contact forces, CLF-QP status, phase, and the COM-height "
-                        "acceleration the CLF-QP's model predicts beside the measured one).")
+                        "directory", description="Re-simulate one scenario of DIR within the "
+                        "chunk it ran in (the sweep's own run: the replay's step log is checked "
+                        "against the stored one) with the controller's 1 kHz log and write "
+                        "DIR/ticks/INDEX.npz and INDEX.png (output errors, torques, contact "
+                        "forces, CLF-QP status, phase, and the COM-height acceleration the "
+                        "CLF-QP's model predicts beside the measured one).")
     tk.add_argument("dir", metavar="DIR")
     tk.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
+    tk.add_argument("--alone", action="store_true",
+                    help="replay the scenario as a batch of one instead of within its chunk "
+                    "(every robot of a chunk logs its ticks, so a large GPU chunk needs "
+                    "memory; a float32 run at the margin may end otherwise alone)")
     _cache_options(tk)
 
     fs = sub.add_parser("s2s", help="fit the robot's step-to-step map from a results directory",
@@ -551,16 +557,32 @@ def cmd_ticks(args) -> int:
         raise UserError(f"SCENARIO: {args.scenario!r} is neither a scenario name of {d} nor an "
                         f"index; allowed: 0..{len(names) - 1} or a name from summary.csv")
     try:
-        npz, png = tick_report.replay(d, index)
+        rep = tick_report.replay(d, index, alone=args.alone)
     except ValueError as err:
         raise UserError(str(err)) from None
-    print(f"ticks: {npz}")
-    print(f"       {png}")
-    mm = tick_report.mismatch(dict(np.load(npz)))
+    print(f"ticks: {rep.npz}")
+    print(f"       {rep.png}")
+    print(_agreement_text(rep, store.read_manifest(d)))
+    mm = tick_report.mismatch(dict(np.load(rep.npz)))
     for phase, (meas, model) in mm.items():
         print(f"COM height acceleration, mean over {phase.upper()} ticks: measured {meas:+.3f}, "
               f"CLF-QP model {model:+.3f} m/s²")
     return EXIT_OK
+
+
+def _agreement_text(rep, man: dict) -> str:
+    """One line: whether the replay (alone or within its chunk) is the sweep's run."""
+    import jax
+    where = ("alone" if rep.within == "alone"
+             else f"within its chunk of {man['batch']} on {len(jax.devices())} device(s)")
+    a = rep.agreement
+    if a.identical:
+        return f"replay ({where}): the stored step log, bit for bit"
+    ran = man.get("jax", {}).get("devices", [])
+    note = (f"; the sweep ran on {len(ran)} device(s)" if ran and len(ran) != len(jax.devices())
+            else "")
+    return (f"replay ({where}) differs from the stored step log from step {a.first_step} on "
+            f"(largest robot-state difference {a.largest:.3g}){note}")
 
 
 def cmd_list(args) -> int:

@@ -620,20 +620,64 @@ def simulate_ticks(configs: Sequence[ScenarioConfig], index: int, *, n_samples: 
                    dtype=None):
     """Re-simulate scenario ``index`` of ``configs`` (a Cassie sweep) alone, with the plant's
     per-tick log.  The array sizes are the whole sweep's (:func:`shapes_of`), so the run is the
-    one the sweep made up to floating-point differences of a batch of one.  Returns (the step
+    one the sweep made up to floating-point differences of a batch of one
+    (:func:`simulate_chunk_ticks` repeats the sweep's own batch instead).  Returns (the step
     log as a dict of arrays (K, ...), the tick log (:class:`hlip_jax.plants.cassie.tick.TickLog`
     of arrays (K, ticks per step, ...)))."""
     configs = list(configs)
     cfg = configs[index]
-    if plants.load(cfg.plant).step_with_log is None:
-        raise ValueError(f"plant: scenario {index}'s plant {cfg.plant!r} keeps no per-tick log; "
-                         f"plants that do: " + ", ".join(
-                             repr(n) for n in plants.NAMES if plants.load(n).step_with_log))
+    _check_keeps_ticks(cfg, index)
     batch, static = build([cfg], n_samples=n_samples, dtype=dtype, shapes=shapes_of(configs))
     with jax.default_matmul_precision("highest"):
         out = run(batch, static._replace(keep_ticks=True))
     out = jax.tree.map(lambda a: np.asarray(a)[0], out)
     return out, out.pop("ticks")
+
+
+def _simulate_batch(configs, *, n_samples, pad_to, dtype, shapes, devices, keep_ticks):
+    """:func:`simulate`'s run: (the host batch, the outputs of the first ``len(configs)``
+    scenarios as numpy arrays), the tick log under "ticks" where ``keep_ticks``."""
+    configs = list(configs)
+    S = len(configs)
+    devices = jax.devices() if devices is None else list(devices)
+    n = max(pad_to or S, S)
+    n = -(-n // len(devices)) * len(devices)
+    padded = configs + [configs[-1]] * (n - S)
+    batch, static = build(padded, n_samples=n_samples, dtype=dtype, shapes=shapes)
+    host = batch
+    if len(devices) > 1:
+        batch = place(batch, scenario_sharding(devices))
+    with jax.default_matmul_precision("highest"):
+        out = run(batch, static._replace(progress=progress.active(), keep_ticks=keep_ticks))
+    return host, jax.tree.map(lambda a: _to_host(a)[:S], out)
+
+
+def simulate_chunk_ticks(configs: Sequence[ScenarioConfig], index: int, *, n_samples: int = 2048,
+                         dtype=None, shapes: Shapes | None = None, devices=None):
+    """Simulate the batch ``configs`` exactly as :func:`simulate` does (the same padding to the
+    devices, split and array sizes ``shapes``), with the plant's per-tick log, and return
+    scenario ``index``'s (step log as a dict of arrays (K, ...), tick log
+    (:class:`hlip_jax.plants.cassie.tick.TickLog` of arrays (K, ticks per step, ...))).
+
+    Given a sweep chunk's scenarios (:func:`hlip_jax.runner.chunk_configs`) on the devices it
+    ran on, this is the chunk's run: the tick log rides along with the same computation, and
+    the step log comes out as the sweep stored it (checked bit for bit on a float32 chunk of 10
+    pushed robots over two CPU devices: ``hlip_jax.tick_report`` compares it every replay).
+    :func:`simulate_ticks` (a batch of one) is not: float32 rounding changes with the batch, and
+    a run at the margin can walk alone and fall in its chunk."""
+    configs = list(configs)
+    _check_keeps_ticks(configs[index], index)
+    _, out = _simulate_batch(configs, n_samples=n_samples, pad_to=None, dtype=dtype,
+                             shapes=shapes, devices=devices, keep_ticks=True)
+    out = jax.tree.map(lambda a: np.asarray(a)[index], out)
+    return out, out.pop("ticks")
+
+
+def _check_keeps_ticks(cfg: ScenarioConfig, index: int) -> None:
+    if plants.load(cfg.plant).step_with_log is None:
+        raise ValueError(f"plant: scenario {index}'s plant {cfg.plant!r} keeps no per-tick log; "
+                         f"plants that do: " + ", ".join(
+                             repr(n) for n in plants.NAMES if plants.load(n).step_with_log))
 
 
 def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to: int | None = None,
@@ -650,17 +694,8 @@ def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to
     (:func:`hlip_jax.progress.listening`) every finished walking step is reported."""
     configs = list(configs)
     S = len(configs)
-    devices = jax.devices() if devices is None else list(devices)
-    n = max(pad_to or S, S)
-    n = -(-n // len(devices)) * len(devices)
-    padded = configs + [configs[-1]] * (n - S)
-    batch, static = build(padded, n_samples=n_samples, dtype=dtype, shapes=shapes)
-    host = batch
-    if len(devices) > 1:
-        batch = place(batch, scenario_sharding(devices))
-    with jax.default_matmul_precision("highest"):
-        out = run(batch, static._replace(progress=progress.active()))
-    out = jax.tree.map(lambda a: _to_host(a)[:S], out)
+    host, out = _simulate_batch(configs, n_samples=n_samples, pad_to=pad_to, dtype=dtype,
+                                shapes=shapes, devices=devices, keep_ticks=False)
     valid = out["valid"]
     valid_w = valid & np.concatenate([valid[:, 1:], np.zeros((S, 1), bool)], axis=1)  # k, k+1
     out["w"] = np.where(valid_w[..., None, None], out["w"], np.nan)

@@ -92,6 +92,13 @@ def default_batch(n: int, cap: int | None = None) -> int:
     return max(1, math.ceil(n / n_chunks))
 
 
+def chunk_configs(configs: list, batch: int, i: int) -> list:
+    """The scenarios chunk ``i`` of ``configs`` simulates: its own, padded to ``batch`` with
+    its last one (so every chunk has the batch's shape and shares one compile)."""
+    a, b = store.chunk_ranges(len(configs), batch)[i]
+    return configs[a:b] + [configs[b - 1]] * (batch - (b - a))
+
+
 def _default_simulate(configs):
     """The closed loop with sweep-wide array shapes, so every chunk reuses one compile."""
     from hlip_jax import rollout
@@ -314,7 +321,7 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
             continue
         if max_chunks is not None and ran >= max_chunks:
             break
-        chunk_cfgs = configs[a:b] + [configs[b - 1]] * (batch - (b - a))
+        chunk_cfgs = chunk_configs(configs, batch, i)
         try:
             budget = None if max_chunks is None else max_chunks - ran - 1
             news = (progress.listening(_chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget))

@@ -2,12 +2,16 @@
 
 The sweep keeps one record per walking step; explaining a fall needs the 1 kHz tick: output
 errors, torques, contact set and forces, CLF-QP status, phase.  :func:`replay` re-simulates the
-chosen scenario alone from the configs in the directory's manifest (the sweep's own array
-sizes, so the same run up to the floating-point differences of a batch of one; a chaotic fall
-can diverge late) with the plant's tick log (:class:`hlip_jax.plants.cassie.tick.TickLog`),
-and writes ``ticks/<index>.npz`` (the ticks that ran, idle ones after each touchdown dropped,
-with the plant time ``time`` [s], the step index ``step`` and the measured output
-accelerations ``ydd_meas``) and ``ticks/<index>.png``.
+chosen scenario from the configs in the directory's manifest with the plant's tick log
+(:class:`hlip_jax.plants.cassie.tick.TickLog`): by default within the chunk it ran in (the
+same scenarios, padding, device split and array sizes, so the sweep's own run:
+:func:`compare` checks the replay's step log against the stored one, bit for bit), or alone
+(a batch of one: less memory, but float32 rounding changes with the batch, and a run at the
+margin can then walk where its chunk fell).  It writes ``ticks/<index>.npz`` (the ticks that
+ran, idle ones after each touchdown dropped, with the plant time ``time`` [s], the step index
+``step`` and the measured output accelerations ``ydd_meas``) and ``ticks/<index>.png``.  The
+chunk's device split is this machine's: on another device count (the manifest names the
+sweep's devices) the replay may differ, and :func:`compare` says so.
 
 Model mismatch: every tick logs the output accelerations the CLF-QP's model predicts for the
 torques it applied (``ydd_model``: rigid leaf springs, the tick's contact set) and the output
@@ -20,6 +24,7 @@ the output's PD feedback has to absorb the difference.
 from __future__ import annotations
 
 import pathlib
+from typing import NamedTuple
 
 import numpy as np
 
@@ -115,17 +120,63 @@ def figure(flat: dict, title: str, path) -> None:
     plt.close(fig)
 
 
-def replay(out_dir, index: int) -> tuple[pathlib.Path, pathlib.Path]:
-    """Re-simulate scenario ``index`` of the results in ``out_dir`` with its tick log; returns
-    the paths of the written ``.npz`` and ``.png``."""
-    from hlip_jax import rollout, store, sweep
+class Agreement(NamedTuple):
+    """How a replay's step log compares with the one the sweep stored (:func:`compare`)."""
+    identical: bool      # every step's robot state, validity, status and fall step equal bit for bit
+    first_step: int      # first step whose robot state or validity differs (−1: none)
+    largest: float       # largest |Δ| of the robot state [m, m, m/s] over the steps both ran
+
+
+class Replay(NamedTuple):
+    npz: pathlib.Path          # the tick log (:func:`flatten`, with ``ydd_meas``)
+    png: pathlib.Path          # its figure (:func:`figure`)
+    within: str                # "chunk": the sweep's own batch; "alone": a batch of one
+    agreement: Agreement       # the replay's step log against the stored one
+
+
+def compare(stored: dict, replayed: dict) -> Agreement:
+    """``stored``: one scenario's step log as the sweep keeps it (arrays (K, ...)); ``replayed``:
+    the replay's (K', ...).  Compares the robot state x_R at SSP⁻ (NaN where a step did not
+    run) step by step over the shorter K, and the outcome."""
+    K = min(len(stored["valid"]), len(replayed["valid"]))
+    xs = np.asarray(stored["x_robot"][:K], np.float64)
+    xr = np.asarray(replayed["x_robot"][:K], np.float64)
+    vs, vr = np.asarray(stored["valid"][:K], bool), np.asarray(replayed["valid"][:K], bool)
+    both = vs & vr
+    diff = np.where(both[:, None, None], np.abs(xs - xr), 0.0)
+    bad = (diff.reshape(K, -1).max(axis=1) > 0) | (vs != vr)
+    first = int(np.flatnonzero(bad)[0]) if bad.any() else -1
+    same_end = (int(stored["status"]) == int(replayed["status"])
+                and int(stored["fail_step"]) == int(replayed["fail_step"]))
+    return Agreement(identical=first < 0 and same_end, first_step=first,
+                     largest=float(diff.max(initial=0.0)))
+
+
+def _simulated(man: dict, configs: list, index: int, alone: bool):
+    """(step log, tick log) of scenario ``index`` replayed alone or within its chunk."""
+    from hlip_jax import rollout, runner
+    if alone:
+        return rollout.simulate_ticks(configs, index)
+    batch = int(man["batch"])
+    chunk = runner.chunk_configs(configs, batch, index // batch)
+    return rollout.simulate_chunk_ticks(chunk, index % batch, shapes=rollout.shapes_of(configs))
+
+
+def replay(out_dir, index: int, *, alone: bool = False) -> Replay:
+    """Re-simulate scenario ``index`` of the results in ``out_dir`` with its tick log, within
+    the chunk it ran in (the chunk's scenarios, padding and device split: the sweep's own run)
+    or, with ``alone``, as a batch of one (less memory: the chunk's every robot logs its ticks;
+    float32 runs at the margin may end otherwise).  Writes ``ticks/<index>.npz`` and ``.png``
+    and compares the replay's step log with the stored one."""
+    from hlip_jax import store, sweep
     from hlip_jax.plants.cassie import control
 
     man = store.read_manifest(out_dir)
     configs = [sweep.config_from_dict(d) for d in man["configs"]]
     if not 0 <= index < len(configs):
         raise ValueError(f"scenario: index {index} is out of range; allowed: 0..{len(configs) - 1}")
-    step_log, ticks = rollout.simulate_ticks(configs, index)
+    step_log, ticks = _simulated(man, configs, index, alone)
+    stored = {k: v[0] for k, v in store.load_log(out_dir, [index]).items()}
     flat = flatten(ticks._asdict(), step_log, control.CONTROL_DT)
     folder = pathlib.Path(out_dir) / "ticks"
     folder.mkdir(exist_ok=True)
@@ -134,4 +185,4 @@ def replay(out_dir, index: int) -> tuple[pathlib.Path, pathlib.Path]:
     store.save_npz_atomic(npz, flat)
     status = steplog.STATUS_NAMES.get(int(step_log["status"]), "?")
     figure(flat, f"#{index} {configs[index].name} ({status})", png)
-    return npz, png
+    return Replay(npz, png, "alone" if alone else "chunk", compare(stored, step_log))

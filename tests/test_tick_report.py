@@ -40,8 +40,9 @@ def test_replay_matches_the_sweep_and_logs_every_tick(tmp_path, capsys, float64)
     runner.run_sweep(sw, out, batch=1, with_coverage=False, progress=False)
     assert cli.main(["ticks", str(out), "99"]) == 2                 # bad index: exit 2
     assert "allowed: 0..0" in capsys.readouterr().err
-    npz, png = tick_report.replay(out, 0)
-    assert png.is_file()
+    rep = tick_report.replay(out, 0, alone=True)
+    npz, png = rep.npz, rep.png
+    assert png.is_file() and rep.within == "alone"
     flat = dict(np.load(npz))
     log = store.load_log(out)
     steps = int(log["valid"][0].sum())
@@ -109,3 +110,56 @@ def test_measured_accel_and_mismatch_are_exact_on_a_known_motion():
     flat["ydd_meas"] = meas
     mm = tick_report.mismatch(flat)
     assert mm["dsp"] == pytest.approx((a[3], a[3] + 1.0)) and mm["ssp"] == pytest.approx((a[3], a[3] + 1.0))
+
+
+# the sweep above with the preset's carried ADMM step size and a second, unpushed robot
+CHUNK = SWEEP.replace('qp_rho_start = "default"', 'qp_rho_start = "previous"') + """
+[[paths]]
+name = "quiet"
+shape = "line"
+length = 2.0
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1200)
+def test_replay_within_its_chunk_is_the_sweeps_run_bit_for_bit(tmp_path, capsys, float64):
+    # The default replay repeats the chunk (both robots, the preset's carried ADMM step size):
+    # the tick log rides along with the same computation, so the replayed step log must equal
+    # the stored one exactly (tolerance 0), which is what lets a fall be explained from the
+    # results directory.  The CLI says so in one line.
+    sw = sweep.parse_sweep(CHUNK)
+    out = tmp_path / "r"
+    runner.run_sweep(sw, out, batch=2, with_coverage=False, progress=False)
+    assert cli.main(["ticks", str(out), "0"]) == 0
+    said = capsys.readouterr().out
+    assert "within its chunk of 2" in said and "bit for bit" in said, said
+    flat = dict(np.load(out / "ticks" / "0.npz"))
+    log = store.load_log(out, [0])
+    steps = int(log["valid"][0].sum())
+    assert steps >= 3 and flat["step"].max() == steps - 1
+
+
+def _log(K=6):
+    x = np.arange(K * 2 * 3, dtype=float).reshape(K, 2, 3)
+    return {"x_robot": x, "valid": np.ones(K, bool), "status": np.int32(0),
+            "fail_step": np.int32(-1)}
+
+
+def test_compare_finds_the_first_differing_step_and_the_outcome():
+    a, b = _log(), _log()
+    assert tick_report.compare(a, b) == tick_report.Agreement(True, -1, 0.0)
+    b["x_robot"] = b["x_robot"].copy()
+    b["x_robot"][3, 1, 2] += 1e-12                      # one last-bit change at step 3
+    got = tick_report.compare(a, b)
+    assert not got.identical and got.first_step == 3 and 0 < got.largest < 1e-11
+    c = _log()
+    c["valid"] = c["valid"].copy()
+    c["valid"][4:] = False                              # the replay falls at step 4
+    c["x_robot"] = np.where(c["valid"][:, None, None], c["x_robot"], np.nan)
+    c["status"], c["fail_step"] = np.int32(1), np.int32(4)
+    got = tick_report.compare(a, c)
+    assert not got.identical and got.first_step == 4 and got.largest == 0.0
+    # a replay that ends the same way and differs nowhere, but logs fewer steps, is identical
+    # over the steps both have
+    assert tick_report.compare(a, {k: (v[:5] if np.ndim(v) else v) for k, v in a.items()}).identical
