@@ -13,6 +13,13 @@ read).  The cache is keyed by JAX on the program, the JAX/XLA versions and the d
 stale entry is never used for a different program.  The traced closed loops that lead to
 those programs are kept beside them (``DIR/traces``, :mod:`hlip_jax.trace_cache`), so a rerun
 skips tracing too.
+
+Bound: JAX bounds its own directory only with the ``filelock`` package (not a dependency), so
+:func:`enable` prunes it instead, before the command compiles anything: while JAX's
+executables total more than :data:`MAX_BYTES`, the least recently used goes (by the later of
+its access and modification times; JAX's ``-atime`` stamp goes with it).  A Cassie sweep's
+executables are a few MB on a CPU.  Another process that loses an entry this way compiles it
+again; nothing else in the directory (the traces, files that are not JAX's) is touched.
 """
 
 from __future__ import annotations
@@ -22,6 +29,8 @@ from pathlib import Path
 
 MIN_COMPILE_S = 1.0    # [s] programs faster to compile than this are not stored
 TRACES = "traces"      # subdirectory of the traced closed loops (hlip_jax.trace_cache)
+MAX_BYTES = 4 * 2**30  # JAX's executables beyond this total are pruned when a command starts
+ENTRY, STAMP = "-cache", "-atime"   # JAX's names: <key>-cache, and <key>-atime where it keeps one
 
 
 class CacheDirError(ValueError):
@@ -57,7 +66,30 @@ def enable(path: Path) -> None:
 
     from hlip_jax import trace_cache
 
-    jax.config.update("jax_compilation_cache_dir", str(usable(path)))
+    prune(usable(path))
+    jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_S)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     trace_cache.enable(path / TRACES)
+
+
+def prune(path: Path, budget: int = MAX_BYTES) -> int:
+    """Delete JAX's least recently used executables in ``path`` until they total at most
+    ``budget`` bytes (module doc); returns the bytes freed.  Best effort: entries another
+    process removes meanwhile are skipped."""
+    entries = []
+    for f in path.glob("*" + ENTRY):
+        try:
+            st = f.stat()
+        except OSError:
+            continue
+        entries.append((max(st.st_atime_ns, st.st_mtime_ns), st.st_size, f))
+    total = sum(size for _, size, _ in entries)
+    freed = 0
+    for _, size, f in sorted(entries):
+        if total - freed <= budget:
+            break
+        f.unlink(missing_ok=True)
+        f.with_name(f.name[:-len(ENTRY)] + STAMP).unlink(missing_ok=True)
+        freed += size
+    return freed

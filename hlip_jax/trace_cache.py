@@ -28,8 +28,8 @@ arguments' placement; programs XLA partitions over several GPUs are not given to
 (the rollout calls them directly).  The directory is ``<compilation cache>/traces``; the CLI's
 ``--no-compile-cache`` turns both caches off.  It holds at most :data:`MAX_BYTES` of entries
 (about 1 MB per sweep shape): storing a new one evicts the least recently used (a load counts
-as a use).  JAX's compiled executables beside it are not bounded (JAX's own bound needs the
-``filelock`` package).  Entries are Python pickles: like JAX's own
+as a use).  JAX's compiled executables beside it are bounded by
+:func:`hlip_jax.compile_cache.prune`.  Entries are Python pickles: like JAX's own
 compilation cache, the directory must be writable by its user only.
 """
 

@@ -219,3 +219,25 @@ def test_segments_compile_ahead_with_the_keys_the_loop_uses(cache, monkeypatch):
     assert len(progs) == 2 and all(p.compiled is not None for p in progs)
     assert all(p.jitted._cache_size() == 0 for p in progs)
     _assert_equal(out, _plain(True))
+
+
+def test_prune_drops_jaxs_least_recently_used_executables_only(tmp_path):
+    # four JAX entries of 100 bytes used at t = 1..4 s (the later of access and modification
+    # time counts), an -atime stamp beside the oldest, a trace directory and a foreign file:
+    # a 250-byte budget keeps the two most recent entries and touches nothing else
+    import os
+    for i, name in enumerate(["a", "b", "c", "d"]):
+        f = tmp_path / f"jit_{name}-cache"
+        f.write_bytes(b"x" * 100)
+        os.utime(f, ns=((i + 1) * 10**9, (i + 1) * 10**9))
+    os.utime(tmp_path / "jit_c-cache", ns=(9 * 10**9, 3 * 10**9))   # read last: kept
+    (tmp_path / "jit_a-atime").write_bytes(b"t")
+    (tmp_path / compile_cache.TRACES).mkdir()
+    (tmp_path / compile_cache.TRACES / "k.hlotrace").write_bytes(b"y" * 1000)
+    (tmp_path / "notes.txt").write_bytes(b"z" * 1000)
+    assert compile_cache.prune(tmp_path, budget=250) == 200
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == ["jit_c-cache", "jit_d-cache", "notes.txt", compile_cache.TRACES]
+    assert compile_cache.prune(tmp_path, budget=250) == 0            # within budget: nothing
+    assert compile_cache.prune(tmp_path, budget=0) == 200            # every entry, no other file
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", compile_cache.TRACES]
