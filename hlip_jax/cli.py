@@ -38,6 +38,7 @@ import contextlib
 import importlib
 import json
 import os
+import re
 import signal
 import sys
 from pathlib import Path
@@ -178,6 +179,10 @@ def _add_run(sub) -> None:
                    help="skip the per-scenario invariant-set coverage columns of summary.csv "
                    "(≈ 30 ms per scenario; the report still analyses each path)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
+    r.add_argument("--ticks", metavar="REGEX",
+                   help="after the sweep, replay the Cassie scenarios whose names match REGEX "
+                   "within their chunks with the controller's 1 kHz log (as `ticks` does: "
+                   "DIR/ticks/INDEX.npz, .png, .json) and show their figures in the report")
     r.add_argument("--distributed", action="store_true",
                    help="several hosts: call jax.distributed.initialize() (coordinator, process "
                    "count and id from the environment, e.g. JAX_COORDINATOR_ADDRESS / SLURM); every "
@@ -339,6 +344,10 @@ def cmd_run(args) -> int:
     if args.resume and args.overwrite:
         raise UserError("--resume and --overwrite exclude each other")
     sim = _simulate_override()
+    if args.ticks is not None and args.distributed:
+        raise UserError("--ticks and --distributed exclude each other: replay the scenarios "
+                        f"afterwards with `{PROG} ticks DIR SCENARIO`")
+    chosen = _tick_choice(sw, args.ticks) if args.ticks is not None else []
     if args.distributed:
         import jax
         _init_distributed(jax)
@@ -357,12 +366,36 @@ def cmd_run(args) -> int:
               f"continue with `{PROG} run {args.sweep} --out {out} --resume`", file=sys.stderr)
         return EXIT_INCOMPLETE
     print(f"results: {out} ({res.n_scenarios} scenarios, {res.seconds:.1f} s)")
+    if chosen:
+        _tick_logs(out, chosen)
     if not args.no_report:
         with runner.on_host():
             html, md = report.write_report(out)
         print(f"report: {html}")
         print(f"        {md}")
     return EXIT_OK
+
+
+def _tick_choice(sw, pattern: str) -> list[int]:
+    """Indices of the scenarios of ``sw`` whose names match ``pattern`` (``--ticks``); a user
+    error, before anything runs, for a bad pattern, no match or a plant without a tick log."""
+    from hlip_jax import plants
+    cfgs = list(sw.scenarios)
+    chosen = _matching([c.name for c in cfgs], pattern, "--ticks")
+    for i in chosen:
+        if plants.load(cfgs[i].plant).step_with_log is None:
+            raise UserError(f"--ticks: scenario {cfgs[i].name!r} runs plant {cfgs[i].plant!r}, "
+                            f"which keeps no per-tick log; plants that do: " + ", ".join(
+                                repr(n) for n in plants.NAMES if plants.load(n).step_with_log))
+    return chosen
+
+
+def _tick_logs(out: Path, chosen: list[int]) -> None:
+    """Replay the ``--ticks`` scenarios of ``out`` within their chunks; one line each."""
+    from hlip_jax import store, tick_report
+    man = store.read_manifest(out)
+    for rep in tick_report.replay_many(out, chosen):
+        print(f"ticks: {rep.png}: {_agreement_text(rep, man)}")
 
 
 def _init_distributed(jax) -> None:
@@ -436,20 +469,27 @@ def cmd_coverage(args) -> int:
 
 def _chosen_scenarios(d: Path, regex: str) -> list[int]:
     """Indices of the scenarios of results directory ``d`` whose name matches ``regex``
-    (``--scenarios``, Python re.search), after checking its chunks; UserError when the
-    expression is malformed or matches none."""
-    import re
-
+    (``--scenarios``), after checking its chunks; UserError when the expression is malformed
+    or matches none."""
     from hlip_jax import store
+    _matching([], regex, "--scenarios")       # a malformed pattern is named before any chunk is read
+    store.check_chunks(d)
+    return _matching([c["name"] for c in store.read_manifest(d)["configs"]], regex,
+                     "--scenarios")
+
+
+def _matching(names: list[str], regex: str, option: str) -> list[int]:
+    """Indices of ``names`` that ``regex`` matches (Python re.search); UserError naming
+    ``option`` when the expression is malformed or, given names, matches none of them."""
     try:
         pattern = re.compile(regex)
     except re.error as err:
-        raise UserError(f"--scenarios: not a regular expression ({err})") from None
-    store.check_chunks(d)
-    names = [c["name"] for c in store.read_manifest(d)["configs"]]
+        raise UserError(f"{option}: {regex!r} is not a regular expression ({err})") from None
     chosen = [i for i, n in enumerate(names) if pattern.search(n)]
-    if not chosen:
-        raise UserError(f"--scenarios: {regex!r} matches none of the {len(names)} scenarios")
+    if names and not chosen:
+        shown = ", ".join(names[:5]) + (", …" if len(names) > 5 else "")
+        raise UserError(f"{option}: {regex!r} matches none of the {len(names)} scenarios "
+                        f"({shown})")
     return chosen
 
 

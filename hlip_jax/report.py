@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import base64
 import html
+import json
 import math
 from pathlib import Path
 from typing import Sequence
@@ -665,6 +666,8 @@ def _closing_sections(doc: "_Doc", man: dict, rows: list[dict], fig_dir: Path, h
                     "–" if _isnan(r.get("push_recovery_steps", math.nan))
                     else int(r["push_recovery_steps"])] for r in pushed[:MAX_TABLE_ROWS]])
 
+    _tick_section(doc, fig_dir.parent)
+
     doc.h(2, "Per-scenario summary")
     cols = ["index", "name", "status", "rms_track_err", "max_track_err", "final_pos_err",
             "cov_x_outer", "cov_y_outer", "cov_x_heldout", "cov_y_heldout", "e_size_x",
@@ -676,6 +679,28 @@ def _closing_sections(doc: "_Doc", man: dict, rows: list[dict], fig_dir: Path, h
     if len(rows) > MAX_TABLE_ROWS:
         doc.p(f"… {len(rows) - MAX_TABLE_ROWS} more rows in summary.csv")
 
+
+
+def _tick_section(doc: "_Doc", out: Path) -> None:
+    """The per-tick logs replayed into ``out/ticks`` (``hlip-sweep run --ticks``, ``hlip-sweep
+    ticks``; :mod:`hlip_jax.tick_report`): each scenario's figure, how it was replayed and
+    whether the replay is the stored run."""
+    logs = sorted((p for p in out.glob("ticks/*.json") if p.stem.isdigit()),
+                  key=lambda p: int(p.stem))
+    if not logs:
+        return
+    doc.h(2, f"Per-tick logs ({len(logs)})")
+    doc.p("Each scenario replayed with the controller's 1 kHz log: output errors, motor "
+          "torques, contact forces, CLF-QP status and phase, and the COM-height acceleration "
+          "the CLF-QP's model predicts beside the measured one (tick logs: ticks/INDEX.npz).")
+    for p in logs:
+        meta = json.loads(p.read_text())
+        how = "within its chunk" if meta["within"] == "chunk" else "alone"
+        verdict = ("the stored run, bit for bit" if meta["identical"] else
+                   f"differs from the stored run from step {meta['first_step']} on "
+                   f"(largest robot-state difference {meta['largest']:.3g})")
+        doc.p(f"#{p.stem} {meta['name']}: replayed {how}: {verdict}.")
+        doc.img(f"ticks/{p.stem}.png", f"per-tick log of {meta['name']}")
 
 
 def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Path, Path]:

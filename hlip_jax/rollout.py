@@ -652,11 +652,12 @@ def _simulate_batch(configs, *, n_samples, pad_to, dtype, shapes, devices, keep_
     return host, jax.tree.map(lambda a: _to_host(a)[:S], out)
 
 
-def simulate_chunk_ticks(configs: Sequence[ScenarioConfig], index: int, *, n_samples: int = 2048,
-                         dtype=None, shapes: Shapes | None = None, devices=None):
+def simulate_chunk_ticks(configs: Sequence[ScenarioConfig], indices: Sequence[int], *,
+                         n_samples: int = 2048, dtype=None, shapes: Shapes | None = None,
+                         devices=None) -> list:
     """Simulate the batch ``configs`` exactly as :func:`simulate` does (the same padding to the
-    devices, split and array sizes ``shapes``), with the plant's per-tick log, and return
-    scenario ``index``'s (step log as a dict of arrays (K, ...), tick log
+    devices, split and array sizes ``shapes``), with the plant's per-tick log, and return, for
+    each scenario of ``indices``, its (step log as a dict of arrays (K, ...), tick log
     (:class:`hlip_jax.plants.cassie.tick.TickLog` of arrays (K, ticks per step, ...))).
 
     Given a sweep chunk's scenarios (:func:`hlip_jax.runner.chunk_configs`) on the devices it
@@ -666,11 +667,15 @@ def simulate_chunk_ticks(configs: Sequence[ScenarioConfig], index: int, *, n_sam
     :func:`simulate_ticks` (a batch of one) is not: float32 rounding changes with the batch, and
     a run at the margin can walk alone and fall in its chunk."""
     configs = list(configs)
-    _check_keeps_ticks(configs[index], index)
+    for j in indices:
+        _check_keeps_ticks(configs[j], j)
     _, out = _simulate_batch(configs, n_samples=n_samples, pad_to=None, dtype=dtype,
                              shapes=shapes, devices=devices, keep_ticks=True)
-    out = jax.tree.map(lambda a: np.asarray(a)[index], out)
-    return out, out.pop("ticks")
+    picked = []
+    for j in indices:
+        one = jax.tree.map(lambda a: np.asarray(a)[j], out)
+        picked.append((one, one.pop("ticks")))
+    return picked
 
 
 def _check_keeps_ticks(cfg: ScenarioConfig, index: int) -> None:

@@ -9,7 +9,9 @@ same scenarios, padding, device split and array sizes, so the sweep's own run:
 (a batch of one: less memory, but float32 rounding changes with the batch, and a run at the
 margin can then walk where its chunk fell).  It writes ``ticks/<index>.npz`` (the ticks that
 ran, idle ones after each touchdown dropped, with the plant time ``time`` [s], the step index
-``step`` and the measured output accelerations ``ydd_meas``) and ``ticks/<index>.png``.  The
+``step`` and the measured output accelerations ``ydd_meas``), ``ticks/<index>.png`` and
+``ticks/<index>.json`` (how it was replayed and whether that is the stored run), which the
+report shows (``hlip-sweep run --ticks REGEX`` replays the chosen scenarios after the sweep).  The
 chunk's device split is this machine's: on another device count (the manifest names the
 sweep's devices) the replay may differ, and :func:`compare` says so.
 
@@ -23,6 +25,7 @@ the output's PD feedback has to absorb the difference.
 
 from __future__ import annotations
 
+import json
 import pathlib
 from typing import NamedTuple
 
@@ -152,31 +155,14 @@ def compare(stored: dict, replayed: dict) -> Agreement:
                      largest=float(diff.max(initial=0.0)))
 
 
-def _simulated(man: dict, configs: list, index: int, alone: bool):
-    """(step log, tick log) of scenario ``index`` replayed alone or within its chunk."""
-    from hlip_jax import rollout, runner
-    if alone:
-        return rollout.simulate_ticks(configs, index)
-    batch = int(man["batch"])
-    chunk = runner.chunk_configs(configs, batch, index // batch)
-    return rollout.simulate_chunk_ticks(chunk, index % batch, shapes=rollout.shapes_of(configs))
-
-
-def replay(out_dir, index: int, *, alone: bool = False) -> Replay:
-    """Re-simulate scenario ``index`` of the results in ``out_dir`` with its tick log, within
-    the chunk it ran in (the chunk's scenarios, padding and device split: the sweep's own run)
-    or, with ``alone``, as a batch of one (less memory: the chunk's every robot logs its ticks;
-    float32 runs at the margin may end otherwise).  Writes ``ticks/<index>.npz`` and ``.png``
-    and compares the replay's step log with the stored one."""
-    from hlip_jax import store, sweep
+def _write(out_dir, index: int, name: str, step_log: dict, ticks, within: str) -> Replay:
+    """Write scenario ``index``'s tick log, its figure and ``ticks/<index>.json`` (the
+    scenario's name, how it was replayed and :func:`compare`'s verdict) into ``out_dir``."""
+    from hlip_jax import store
     from hlip_jax.plants.cassie import control
 
-    man = store.read_manifest(out_dir)
-    configs = [sweep.config_from_dict(d) for d in man["configs"]]
-    if not 0 <= index < len(configs):
-        raise ValueError(f"scenario: index {index} is out of range; allowed: 0..{len(configs) - 1}")
-    step_log, ticks = _simulated(man, configs, index, alone)
     stored = {k: v[0] for k, v in store.load_log(out_dir, [index]).items()}
+    agreement = compare(stored, step_log)
     flat = flatten(ticks._asdict(), step_log, control.CONTROL_DT)
     folder = pathlib.Path(out_dir) / "ticks"
     folder.mkdir(exist_ok=True)
@@ -184,5 +170,49 @@ def replay(out_dir, index: int, *, alone: bool = False) -> Replay:
     flat["ydd_meas"] = measured_accel(flat)
     store.save_npz_atomic(npz, flat)
     status = steplog.STATUS_NAMES.get(int(step_log["status"]), "?")
-    figure(flat, f"#{index} {configs[index].name} ({status})", png)
-    return Replay(npz, png, "alone" if alone else "chunk", compare(stored, step_log))
+    figure(flat, f"#{index} {name} ({status})", png)
+    store.write_atomic(folder / f"{index}.json", json.dumps(
+        {"name": name, "within": within, **agreement._asdict()}, indent=1))
+    return Replay(npz, png, within, agreement)
+
+
+def _manifest_configs(out_dir, indices) -> tuple[dict, list]:
+    from hlip_jax import store, sweep
+    man = store.read_manifest(out_dir)
+    configs = [sweep.config_from_dict(d) for d in man["configs"]]
+    for index in indices:
+        if not 0 <= index < len(configs):
+            raise ValueError(f"scenario: index {index} is out of range; "
+                             f"allowed: 0..{len(configs) - 1}")
+    return man, configs
+
+
+def replay_many(out_dir, indices) -> list[Replay]:
+    """Re-simulate scenarios ``indices`` of the results in ``out_dir`` with their tick logs,
+    each within the chunk it ran in (one run per chunk, however many of its scenarios are
+    asked for; the chunk's scenarios, padding and device split: the sweep's own run), and
+    write their logs and figures (:func:`_write`).  Every robot of a replayed chunk logs its
+    ticks, so a chunk needs that memory once.  Returns one :class:`Replay` per index, in order."""
+    from hlip_jax import rollout, runner
+    man, configs = _manifest_configs(out_dir, indices)
+    batch, shapes = int(man["batch"]), rollout.shapes_of(configs)
+    done = {}
+    for chunk in sorted({i // batch for i in indices}):
+        mine = sorted({i for i in indices if i // batch == chunk})
+        runs = rollout.simulate_chunk_ticks(runner.chunk_configs(configs, batch, chunk),
+                                            [i % batch for i in mine], shapes=shapes)
+        for i, (step_log, ticks) in zip(mine, runs):
+            done[i] = _write(out_dir, i, configs[i].name, step_log, ticks, "chunk")
+    return [done[i] for i in indices]
+
+
+def replay(out_dir, index: int, *, alone: bool = False) -> Replay:
+    """Re-simulate scenario ``index`` of the results in ``out_dir`` with its tick log, within
+    the chunk it ran in (:func:`replay_many`) or, with ``alone``, as a batch of one (less
+    memory; float32 runs at the margin may end otherwise), and write its log and figure."""
+    if not alone:
+        return replay_many(out_dir, [index])[0]
+    from hlip_jax import rollout
+    _, configs = _manifest_configs(out_dir, [index])
+    step_log, ticks = rollout.simulate_ticks(configs, index)
+    return _write(out_dir, index, configs[index].name, step_log, ticks, "alone")

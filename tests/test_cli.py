@@ -736,3 +736,17 @@ def test_whull_writes_the_hull_w_a_sweep_reads(tmp_path, tiny_sweep, capsys, fak
     assert hull.read_bytes() == before
     code, _, err = cli(capsys, "whull", tmp_path / "nope", "--out", tmp_path / "y.csv")
     assert code == 2 and "not found" in err
+
+
+def test_run_ticks_refuses_bad_choices_before_running(tmp_path, tiny_sweep, capsys, fake_loop):
+    # --ticks is checked against the sweep before anything is simulated or written: a
+    # malformed pattern, no matching name, a plant without a tick log (the tiny sweep is
+    # H-LIP) and --distributed are each a one-line error naming the option, exit 2
+    out = tmp_path / "r"
+    for args, msg in ((["--ticks", "("], "not a regular expression"),
+                      (["--ticks", "zz-no-such"], "matches none"),
+                      (["--ticks", "."], "keeps no per-tick log"),
+                      (["--ticks", ".", "--distributed"], "exclude each other")):
+        code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--quiet", *args)
+        assert "--ticks" in _one_line_error(code, err) and msg in err, err
+        assert not out.exists()

@@ -1,6 +1,8 @@
 """Per-tick diagnostics (``hlip-sweep ticks``): a replayed Cassie scenario matches the sweep's
 own step log, and its tick log shows the controller's invariants."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -124,20 +126,29 @@ length = 2.0
 @pytest.mark.slow
 @pytest.mark.timeout(1200)
 def test_replay_within_its_chunk_is_the_sweeps_run_bit_for_bit(tmp_path, capsys, float64):
-    # The default replay repeats the chunk (both robots, the preset's carried ADMM step size):
-    # the tick log rides along with the same computation, so the replayed step log must equal
-    # the stored one exactly (tolerance 0), which is what lets a fall be explained from the
-    # results directory.  The CLI says so in one line.
-    sw = sweep.parse_sweep(CHUNK)
+    # `run --ticks` replays the chosen scenario within its chunk (both robots, the preset's
+    # carried ADMM step size): the tick log rides along with the same computation, so the
+    # replayed step log must equal the stored one exactly (tolerance 0), which is what lets a
+    # fall be explained from the results directory.  The CLI says so, and the report shows the
+    # figure with that verdict; `ticks` replays the other robot of the chunk the same way.
+    f = tmp_path / "chunk.toml"
+    f.write_text(CHUNK)
     out = tmp_path / "r"
-    runner.run_sweep(sw, out, batch=2, with_coverage=False, progress=False)
-    assert cli.main(["ticks", str(out), "0"]) == 0
+    assert cli.main(["run", str(f), "--out", str(out), "--batch", "2", "--no-coverage",
+                     "--quiet", "--ticks", "^line$"]) == 0
     said = capsys.readouterr().out
     assert "within its chunk of 2" in said and "bit for bit" in said, said
+    assert json.loads((out / "ticks" / "0.json").read_text())["identical"] is True
+    report = (out / "report.md").read_text()
+    assert "Per-tick logs (1)" in report and "ticks/0.png" in report
+    assert "line: replayed within its chunk: the stored run, bit for bit" in report
     flat = dict(np.load(out / "ticks" / "0.npz"))
     log = store.load_log(out, [0])
     steps = int(log["valid"][0].sum())
     assert steps >= 3 and flat["step"].max() == steps - 1
+    assert cli.main(["ticks", str(out), "quiet"]) == 0
+    said = capsys.readouterr().out
+    assert "ticks/1.png" in said and "bit for bit" in said, said
 
 
 def _log(K=6):
