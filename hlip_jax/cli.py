@@ -192,6 +192,24 @@ def _add_run(sub) -> None:
     _cache_options(r)
 
 
+def _ticks_parser(sub) -> None:
+    """The ``ticks`` subcommand's arguments."""
+    tk = sub.add_parser("ticks", help="per-tick diagnostics of one Cassie scenario of a results "
+                        "directory", description="Re-simulate one scenario of DIR within the "
+                        "chunk it ran in (the sweep's own run: the replay's step log is checked "
+                        "against the stored one) with the controller's 1 kHz log and write "
+                        "DIR/ticks/INDEX.npz and INDEX.png (output errors, torques, contact "
+                        "forces, CLF-QP status, phase, and the COM-height acceleration the "
+                        "CLF-QP's model predicts beside the measured one).")
+    tk.add_argument("dir", metavar="DIR")
+    tk.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
+    tk.add_argument("--alone", action="store_true",
+                    help="replay the scenario as a batch of one instead of within its chunk "
+                    "(every robot of a chunk logs its ticks, so a large GPU chunk needs "
+                    "memory; a float32 run at the margin may end otherwise alone)")
+    _cache_options(tk)
+
+
 def _bench_parser(sub) -> None:
     """The ``bench`` subcommand's arguments."""
     b = sub.add_parser("bench", help="closed-loop Cassie throughput against physics-only MJX",
@@ -254,20 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="W from the runs whose swept FIELD (a grid field or 'path') is one of "
                     "the values, coverage on the others (default: half of the replicate seeds)")
 
-    tk = sub.add_parser("ticks", help="per-tick diagnostics of one Cassie scenario of a results "
-                        "directory", description="Re-simulate one scenario of DIR within the "
-                        "chunk it ran in (the sweep's own run: the replay's step log is checked "
-                        "against the stored one) with the controller's 1 kHz log and write "
-                        "DIR/ticks/INDEX.npz and INDEX.png (output errors, torques, contact "
-                        "forces, CLF-QP status, phase, and the COM-height acceleration the "
-                        "CLF-QP's model predicts beside the measured one).")
-    tk.add_argument("dir", metavar="DIR")
-    tk.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
-    tk.add_argument("--alone", action="store_true",
-                    help="replay the scenario as a batch of one instead of within its chunk "
-                    "(every robot of a chunk logs its ticks, so a large GPU chunk needs "
-                    "memory; a float32 run at the margin may end otherwise alone)")
-    _cache_options(tk)
+    _ticks_parser(sub)
 
     fs = sub.add_parser("s2s", help="fit the robot's step-to-step map from a results directory",
                         description="Least-squares S2S map [p, v]+ = A [p, v] + B u + c(stance) "
