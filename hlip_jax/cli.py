@@ -384,14 +384,14 @@ def cmd_run(args) -> int:
 def _tick_choice(sw, pattern: str) -> list[int]:
     """Indices of the scenarios of ``sw`` whose names match ``pattern`` (``--ticks``); a user
     error, before anything runs, for a bad pattern, no match or a plant without a tick log."""
-    from hlip_jax import plants
+    from hlip_jax import rollout
     cfgs = list(sw.scenarios)
     chosen = _matching([c.name for c in cfgs], pattern, "--ticks")
     for i in chosen:
-        if plants.load(cfgs[i].plant).step_with_log is None:
-            raise UserError(f"--ticks: scenario {cfgs[i].name!r} runs plant {cfgs[i].plant!r}, "
-                            f"which keeps no per-tick log; plants that do: " + ", ".join(
-                                repr(n) for n in plants.NAMES if plants.load(n).step_with_log))
+        try:
+            rollout.check_keeps_ticks(cfgs[i], i)
+        except ValueError as err:
+            raise UserError(f"--ticks: {err}") from None
     return chosen
 
 
@@ -593,7 +593,8 @@ def cmd_ticks(args) -> int:
     d = Path(args.dir)
     if not d.is_dir():
         raise UserError(f"{d}: results directory not found")
-    names = [c["name"] for c in store.read_manifest(d)["configs"]]
+    man = store.read_manifest(d)
+    names = [c["name"] for c in man["configs"]]
     if args.scenario in names:
         index = names.index(args.scenario)
     elif args.scenario.isdigit() and int(args.scenario) < len(names):
@@ -607,7 +608,7 @@ def cmd_ticks(args) -> int:
         raise UserError(str(err)) from None
     print(f"ticks: {rep.npz}")
     print(f"       {rep.png}")
-    print(_agreement_text(rep, store.read_manifest(d)))
+    print(_agreement_text(rep, man))
     mm = tick_report.mismatch(dict(np.load(rep.npz)))
     for phase, (meas, model) in mm.items():
         print(f"COM height acceleration, mean over {phase.upper()} ticks: measured {meas:+.3f}, "
@@ -618,16 +619,14 @@ def cmd_ticks(args) -> int:
 def _agreement_text(rep, man: dict) -> str:
     """One line: whether the replay (alone or within its chunk) is the sweep's run."""
     import jax
+
+    from hlip_jax import tick_report
     where = ("alone" if rep.within == "alone"
              else f"within its chunk of {man['batch']} on {len(jax.devices())} device(s)")
-    a = rep.agreement
-    if a.identical:
-        return f"replay ({where}): the stored step log, bit for bit"
     ran = man.get("jax", {}).get("devices", [])
-    note = (f"; the sweep ran on {len(ran)} device(s)" if ran and len(ran) != len(jax.devices())
-            else "")
-    return (f"replay ({where}) differs from the stored step log from step {a.first_step} on "
-            f"(largest robot-state difference {a.largest:.3g}){note}")
+    note = (f"; the sweep ran on {len(ran)} device(s)"
+            if not rep.agreement.identical and ran and len(ran) != len(jax.devices()) else "")
+    return f"replay ({where}): {tick_report.verdict(rep.agreement)}{note}"
 
 
 def cmd_list(args) -> int:

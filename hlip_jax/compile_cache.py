@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Callable
 
 MIN_COMPILE_S = 1.0    # [s] programs faster to compile than this are not stored
 TRACES = "traces"      # subdirectory of the traced closed loops (hlip_jax.trace_cache)
@@ -77,19 +78,33 @@ def prune(path: Path, budget: int = MAX_BYTES) -> int:
     """Delete JAX's least recently used executables in ``path`` until they total at most
     ``budget`` bytes (module doc); returns the bytes freed.  Best effort: entries another
     process removes meanwhile are skipped."""
-    entries = []
-    for f in path.glob("*" + ENTRY):
-        try:
-            st = f.stat()
-        except OSError:
-            continue
-        entries.append((max(st.st_atime_ns, st.st_mtime_ns), st.st_size, f))
-    total = sum(size for _, size, _ in entries)
     freed = 0
-    for _, size, f in sorted(entries):
-        if total - freed <= budget:
-            break
+    for f, size in least_recently_used(path.glob("*" + ENTRY), budget,
+                                       lambda st: max(st.st_atime_ns, st.st_mtime_ns)):
         f.unlink(missing_ok=True)
         f.with_name(f.name[:-len(ENTRY)] + STAMP).unlink(missing_ok=True)
         freed += size
     return freed
+
+
+def least_recently_used(files, budget: int, last_use: Callable[[os.stat_result], int],
+                        keep: Path | None = None) -> list[tuple[Path, int]]:
+    """(file, size) of the ``files`` to delete, least recently used first (``last_use`` of
+    their stat), so that the rest total at most ``budget`` bytes; ``keep`` is never chosen.
+    Files that vanish before their stat are left out (another process removed them)."""
+    entries = []
+    for f in files:
+        try:
+            st = f.stat()
+        except OSError:
+            continue
+        entries.append((last_use(st), st.st_size, f))
+    total = sum(size for _, size, _ in entries)
+    chosen = []
+    for _, size, f in sorted(entries):
+        if total <= budget:
+            break
+        if f != keep:
+            chosen.append((f, size))
+            total -= size
+    return chosen

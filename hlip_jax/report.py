@@ -37,7 +37,7 @@ from typing import Sequence
 
 import numpy as np
 
-from hlip_jax import metrics, set_figures, steplog, store, sweep
+from hlip_jax import metrics, set_figures, steplog, store, sweep, tick_report
 
 __all__ = ["ReportError", "write_report", "FIGURE_KINDS"]
 
@@ -696,10 +696,9 @@ def _tick_section(doc: "_Doc", out: Path) -> None:
     for p in logs:
         meta = json.loads(p.read_text())
         how = "within its chunk" if meta["within"] == "chunk" else "alone"
-        verdict = ("the stored run, bit for bit" if meta["identical"] else
-                   f"differs from the stored run from step {meta['first_step']} on "
-                   f"(largest robot-state difference {meta['largest']:.3g})")
-        doc.p(f"#{p.stem} {meta['name']}: replayed {how}: {verdict}.")
+        said = tick_report.verdict(tick_report.Agreement(
+            meta["identical"], meta["first_step"], meta["largest"]))
+        doc.p(f"#{p.stem} {meta['name']}: replayed {how}: {said}.")
         doc.img(f"ticks/{p.stem}.png", f"per-tick log of {meta['name']}")
 
 

@@ -625,13 +625,8 @@ def simulate_ticks(configs: Sequence[ScenarioConfig], index: int, *, n_samples: 
     log as a dict of arrays (K, ...), the tick log (:class:`hlip_jax.plants.cassie.tick.TickLog`
     of arrays (K, ticks per step, ...)))."""
     configs = list(configs)
-    cfg = configs[index]
-    _check_keeps_ticks(cfg, index)
-    batch, static = build([cfg], n_samples=n_samples, dtype=dtype, shapes=shapes_of(configs))
-    with jax.default_matmul_precision("highest"):
-        out = run(batch, static._replace(keep_ticks=True))
-    out = jax.tree.map(lambda a: np.asarray(a)[0], out)
-    return out, out.pop("ticks")
+    return simulate_chunk_ticks([configs[index]], [0], n_samples=n_samples, dtype=dtype,
+                                shapes=shapes_of(configs), devices=jax.devices()[:1])[0]
 
 
 def _simulate_batch(configs, *, n_samples, pad_to, dtype, shapes, devices, keep_ticks):
@@ -668,7 +663,7 @@ def simulate_chunk_ticks(configs: Sequence[ScenarioConfig], indices: Sequence[in
     a run at the margin can walk alone and fall in its chunk."""
     configs = list(configs)
     for j in indices:
-        _check_keeps_ticks(configs[j], j)
+        check_keeps_ticks(configs[j], j)
     _, out = _simulate_batch(configs, n_samples=n_samples, pad_to=None, dtype=dtype,
                              shapes=shapes, devices=devices, keep_ticks=True)
     picked = []
@@ -678,7 +673,9 @@ def simulate_chunk_ticks(configs: Sequence[ScenarioConfig], indices: Sequence[in
     return picked
 
 
-def _check_keeps_ticks(cfg: ScenarioConfig, index: int) -> None:
+def check_keeps_ticks(cfg: ScenarioConfig, index: int) -> None:
+    """ValueError naming the plants that keep one unless scenario ``index`` (``cfg``) runs a
+    plant with a per-tick log."""
     if plants.load(cfg.plant).step_with_log is None:
         raise ValueError(f"plant: scenario {index}'s plant {cfg.plant!r} keeps no per-tick log; "
                          f"plants that do: " + ", ".join(

@@ -155,13 +155,29 @@ def compare(stored: dict, replayed: dict) -> Agreement:
                      largest=float(diff.max(initial=0.0)))
 
 
-def _write(out_dir, index: int, name: str, step_log: dict, ticks, within: str) -> Replay:
+def verdict(a: Agreement) -> str:
+    """:func:`compare`'s result in words."""
+    if a.identical:
+        return "the stored run, bit for bit"
+    return (f"differs from the stored run from step {a.first_step} on "
+            f"(largest robot-state difference {a.largest:.3g})")
+
+
+def _stored(out_dir, indices) -> dict:
+    """{index: that scenario's stored step log (arrays (K, ...))}, the chunks read once."""
+    from hlip_jax import store
+    log = store.load_log(out_dir, indices)
+    return {int(i): {k: v[j] for k, v in log.items()} for j, i in enumerate(log["index"])}
+
+
+def _write(out_dir, index: int, name: str, step_log: dict, ticks, within: str,
+           stored: dict) -> Replay:
     """Write scenario ``index``'s tick log, its figure and ``ticks/<index>.json`` (the
-    scenario's name, how it was replayed and :func:`compare`'s verdict) into ``out_dir``."""
+    scenario's name, how it was replayed and :func:`compare`'s verdict on the replay against
+    ``stored``, the sweep's step log of it) into ``out_dir``."""
     from hlip_jax import store
     from hlip_jax.plants.cassie import control
 
-    stored = {k: v[0] for k, v in store.load_log(out_dir, [index]).items()}
     agreement = compare(stored, step_log)
     flat = flatten(ticks._asdict(), step_log, control.CONTROL_DT)
     folder = pathlib.Path(out_dir) / "ticks"
@@ -196,13 +212,13 @@ def replay_many(out_dir, indices) -> list[Replay]:
     from hlip_jax import rollout, runner
     man, configs = _manifest_configs(out_dir, indices)
     batch, shapes = int(man["batch"]), rollout.shapes_of(configs)
-    done = {}
+    stored, done = _stored(out_dir, indices), {}
     for chunk in sorted({i // batch for i in indices}):
         mine = sorted({i for i in indices if i // batch == chunk})
         runs = rollout.simulate_chunk_ticks(runner.chunk_configs(configs, batch, chunk),
                                             [i % batch for i in mine], shapes=shapes)
         for i, (step_log, ticks) in zip(mine, runs):
-            done[i] = _write(out_dir, i, configs[i].name, step_log, ticks, "chunk")
+            done[i] = _write(out_dir, i, configs[i].name, step_log, ticks, "chunk", stored[i])
     return [done[i] for i in indices]
 
 
@@ -215,4 +231,5 @@ def replay(out_dir, index: int, *, alone: bool = False) -> Replay:
     from hlip_jax import rollout
     _, configs = _manifest_configs(out_dir, [index])
     step_log, ticks = rollout.simulate_ticks(configs, index)
-    return _write(out_dir, index, configs[index].name, step_log, ticks, "alone")
+    return _write(out_dir, index, configs[index].name, step_log, ticks, "alone",
+                  _stored(out_dir, [index])[index])

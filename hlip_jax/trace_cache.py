@@ -50,6 +50,8 @@ import jax
 import numpy as np
 from jax import export as jax_export
 
+from hlip_jax import compile_cache
+
 SUFFIX = ".hlotrace"
 MAX_BYTES = 512 * 2**20      # entries beyond this total are evicted, least recently used first
 REFUSED = ".unexportable"    # marker of a program jax.export refused
@@ -266,21 +268,9 @@ def _evict(keep: Path, budget: int) -> None:
     """Delete the least recently used entries of ``keep``'s directory (by modification time)
     until the entries total at most ``budget`` bytes; ``keep`` (just written) stays.  Best
     effort: entries another process removes or holds open are skipped."""
-    entries = []
-    for f in keep.parent.glob("*" + SUFFIX):
-        try:
-            st = f.stat()
-        except OSError:
-            continue
-        entries.append((st.st_mtime_ns, st.st_size, f))
-    total = sum(size for _, size, _ in entries)
-    for _, size, f in sorted(entries):
-        if total <= budget:
-            return
-        if f == keep:
-            continue
+    for f, _ in compile_cache.least_recently_used(keep.parent.glob("*" + SUFFIX), budget,
+                                    lambda st: st.st_mtime_ns, keep):
         f.unlink(missing_ok=True)
-        total -= size
 
 
 def _program(fn: Callable, static, args, k: str) -> Optional[Program]:
