@@ -13,7 +13,8 @@ Stages (the CLF-QP tick of :mod:`hlip_jax.plants.cassie.control`, the walking ti
                factorisation (``qp.Settings.linsys``, ``cassie.qp_linsys``)
     physics    control.physics: the two MJX steps of a tick (MJX-JAX)
     physics (warp)  the same two steps on MJX's Warp implementation (where warp-lang is installed)
-    tick       all of the above in one program (terms → condense → build → solve → physics)
+    tick       all of the above in one program (terms → condense → build → solve → physics);
+               "tick (inverse)" with the inverse linear solve
 
 Each stage is one jitted, vmapped program over ``B`` robots at the same state (the stand
 keyframe after 0.2 s of standing, all four contact sites closed), timed as the best of
@@ -72,10 +73,11 @@ def _stages(c, des, robots: int):
         p = prob(d)
         w = jax.tree.map(jnp.zeros_like, warm) if cold else warm
         return qp.solve(p.P, p.q, p.A, p.l, p.u, settings=st._replace(linsys=linsys),
-                        warm_start=w).x
+                        warm_start=w[:2]).x
 
-    def tick(d, warm):
-        res, _, _ = control.control(c, d, des, contact, lo, hi, gains, warm, st)
+    def tick(d, warm, linsys="cholesky"):
+        res, _, _ = control.control(c, d, des, contact, lo, hi, gains, warm,
+                                    st._replace(linsys=linsys))
         return control.physics(c, d, res.tau, jnp.zeros(3, dt)).qpos
 
     zero = jnp.zeros(c.index.nu, dt)
@@ -92,6 +94,7 @@ def _stages(c, des, robots: int):
             c, d, zero, jnp.zeros(3, dt), mx=warp_physics.base_model(c.mj_model), backend="warp",
             robots=robots).qpos,
         "tick": tick,
+        "tick (inverse)": lambda d, w: tick(d, w, "inverse"),
     }
 
 
@@ -146,7 +149,7 @@ def main(argv=None) -> None:
         if unknown:
             ap.error(f"--stages: unknown {unknown}; allowed: {list(stages)}")
         rows = {n: _time(stages[n], d, warm, args.ticks, args.repeats) for n in names}
-        whole = rows.get("tick", (0.0, float("nan")))[1]
+        whole = rows.get("tick", rows.get("tick (inverse)", (0.0, float("nan"))))[1]
         for n, (first, per) in rows.items():
             print(f"| {B} | {n} | {first:.1f} | {per * 1e3:.3f} | {per / whole:.2f} |", flush=True)
 
