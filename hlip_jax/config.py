@@ -198,6 +198,13 @@ class CassieConfig:
                           "Pallas kernel that keeps the problem on chip; needs qp_linsys = 'inverse'; "
                           "compiled on GPUs, interpreted elsewhere, so only for GPUs; the same "
                           "iterations up to float rounding, BENCHMARKS.md)", choices=("xla", "fused"))
+    condense: str = spec("eigen", doc="how the CLF-QP's model solves for the constraint forces "
+                         "(static): 'eigen' (G's eigendecomposition with a relative cut of 1e-9, "
+                         "the validated controller's; in float32 it inverts round-off along the "
+                         "plantar four-bars' null directions) or 'deflated' (those null directions "
+                         "projected out and one Cholesky factorisation: float32 within 3e-5 of "
+                         "float64 and cheaper on a GPU; its walking: docs/cassie_validation)",
+                         choices=("eigen", "deflated"))
     qp_rho_start: str = spec("previous", doc="the ADMM step size rho each tick's CLF-QP starts from: "
                              "the previous tick's final rho ('previous', as OSQP keeps rho between "
                              "warm-started solves; about 40 % fewer iterations per tick, "
@@ -295,7 +302,7 @@ class ScenarioConfig:
 #: a batch (:func:`hlip_jax.rollout.build`) and of a sweep (:mod:`hlip_jax.sweep`)
 STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.qp_max_iter", "mpc.qp_eps",
                  "cassie.qp_max_iter", "cassie.qp_eps", "cassie.qp_loop", "cassie.qp_linsys",
-                 "cassie.qp_kernel",
+                 "cassie.qp_kernel", "cassie.condense",
                  "cassie.physics")
 
 

@@ -22,9 +22,24 @@ applies to the robot at that site [N]).  Eliminating λ:
 A site whose ``contact`` flag is 0 gets a zero Jacobian row and a unit diagonal in G, so its
 force is exactly 0 and it does not constrain q̈.  Two sites on one foot constrain only 5 of the
 foot's 6 dofs (their distance is fixed): the heel then keeps only its two rows normal to the
-foot axis (:func:`contact_frames`).  Each plantar four-bar is planar, so its connect rows
-are also dependent (the out-of-plane row); G is therefore inverted as a pseudo-inverse
-(eigenvalues below ``reg · max eig`` dropped), i.e. λ is the minimum-norm least-squares force.  The result is the affine map
+foot axis (:func:`contact_frames`).  Each plantar four-bar is planar, so its three connect
+rows are also dependent: the combination n·(rows) along the four-bar's plane normal n vanishes
+(:func:`plantar_normals`) and G is singular along it.  λ is the minimum-norm least-squares
+force G⁺ r, computed one of two ways (``solve``):
+
+* ``"eigen"`` (the default, the validated controller's): G's eigendecomposition, eigenvalues
+  below ``reg · max eig`` dropped.  In float32 the two null eigenvalues come out as round-off
+  above the cut and are inverted (:func:`condense`).
+* ``"deflated"``: with N (28, 2) the two unit null vectors (n on each plantar loop's rows),
+  G + s N Nᵀ (s = trace G / 28) is positive definite and acts on range(G) as G does, so
+
+      λ = (G + s N Nᵀ)⁻¹ (I − N Nᵀ) r = G⁺ r
+
+  by one Cholesky factorisation (:func:`min_norm_forces`): float32 stays within 3e-5 of
+  float64, and a batched Cholesky is several times cheaper than a batched eigendecomposition
+  on a GPU (BENCHMARKS.md).
+
+The result is the affine map
 
     q̈ = Q_τ τ + q̈₀,   λ = L_τ τ + λ₀,
 
@@ -51,6 +66,10 @@ N_LOOP_ROWS = 12
 N_CONTACT_ROWS = 12
 N_SPRING_ROWS = 4
 N_CONSTRAINT_ROWS = N_LOOP_ROWS + N_CONTACT_ROWS + N_SPRING_ROWS
+#: first rows of the two plantar four-bars' connect constraints (left, right; model.LOOPS order)
+PLANTAR_ROWS = tuple(3 * i for i, name in enumerate(model.LOOPS) if "plantar" in name)
+#: how :func:`condense` computes the minimum-norm constraint forces (module doc)
+SOLVES = ("eigen", "deflated")
 
 
 def spring_dofs(cassie: model.Cassie) -> tuple:
@@ -119,8 +138,46 @@ def constraint_stack(terms: model.RobotTerms, contact: jax.Array, springs=None):
     return J, jd, active, H
 
 
+def plantar_normals(J: jax.Array) -> jax.Array:
+    """N (28, 2): the unit null vectors of G from the two planar plantar four-bars.
+
+    A planar four-bar's connect constraint (3 rows, :data:`PLANTAR_ROWS`) has rank 2: every
+    column of its block J_p lies in the four-bar's plane, and the plane normal n (nᵀ J_p = 0)
+    is the cross product of two of them.  Only the four-bar's own three joints (foot crank,
+    plantar rod, toe) give nonzero columns (every other dof moves both anchors alike), so n
+    is the largest cross product among the three columns of largest norm.  N holds n on each
+    plantar loop's rows; Jᵀ N = 0 and G N = 0 for the whole stack (to the chain's closure: a
+    chain held open by δ tilts n by O(δ))."""
+    N = jnp.zeros((J.shape[0], 2), J.dtype)
+    for i, r in enumerate(PLANTAR_ROWS):
+        cols = J[r:r + 3].T                                                      # (nv, 3)
+        c = cols[jax.lax.top_k(jnp.sum(cols * cols, axis=1), 3)[1]]
+        x = jnp.stack([jnp.cross(c[0], c[1]), jnp.cross(c[0], c[2]), jnp.cross(c[1], c[2])])
+        n = x[jnp.argmax(jnp.sum(x * x, axis=1))]
+        N = N.at[r:r + 3, i].set(n / jnp.linalg.norm(n))
+    return N
+
+
+def min_norm_forces(G: jax.Array, N: jax.Array, r: jax.Array) -> jax.Array:
+    """λ = G⁺ r for symmetric positive semi-definite G whose null space is spanned by the
+    orthonormal columns of N (module doc): (G + s N Nᵀ)⁻¹ (I − N Nᵀ) r, s = trace(G) / rows,
+    one Cholesky factorisation.  r: (rows, k)."""
+    Gs = 0.5 * (G + G.T)
+    s = jnp.trace(Gs) / G.shape[0]
+    return cho_solve(cho_factor(Gs + s * (N @ N.T)), r - N @ (N.T @ r))
+
+
+def eigen_forces(G: jax.Array, r: jax.Array, reg: float = 1e-9) -> jax.Array:
+    """λ = G⁺ r by G's eigendecomposition, eigenvalues below ``reg`` of the largest dropped
+    (with the redundant rows, their inconsistent right sides).  r: (rows, k)."""
+    s, U = jnp.linalg.eigh(0.5 * (G + G.T))
+    tol = reg * jnp.max(s)
+    s_inv = jnp.where(s > tol, 1.0 / jnp.where(s > tol, s, 1.0), 0.0)
+    return U @ (s_inv[:, None] * (U.T @ r))
+
+
 def condense(terms: model.RobotTerms, actuation, contact, springs=None,
-             reg: float = 1e-9) -> Condensed:
+             reg: float = 1e-9, solve: str = "eigen") -> Condensed:
     """Affine maps τ ↦ (q̈, λ) of the constrained dynamics (module doc).
 
     Args:
@@ -136,7 +193,11 @@ def condense(terms: model.RobotTerms, actuation, contact, springs=None,
         spurious plantar-rod force at the standing keyframe.  The validated controller is this
         one; a projection of the null vectors that fixes it walked fewer 200 N pushes on the
         validation set (docs/cassie_gait.md, round 11).
+      solve (static): "eigen" (``reg`` applies) or "deflated", that projection with one
+        Cholesky factorisation (module doc; ``cassie.condense``).
     """
+    if solve not in SOLVES:
+        raise ValueError(f"solve: {solve!r}; allowed: {SOLVES}")
     M = terms.M
     B = jnp.asarray(actuation, M.dtype)
     J, jd, active, H = constraint_stack(terms, contact, springs)
@@ -148,12 +209,10 @@ def condense(terms: model.RobotTerms, actuation, contact, springs=None,
     G = G + jnp.diag(1.0 - active)                    # inactive rows: λ = 0
     rhs_l = -(J @ Minv_rhs)
     rhs_l = rhs_l.at[:, -1].add(-jd)
-    # pseudo-inverse of G: drops redundant rows (the out-of-plane row of each planar plantar
-    # four-bar, and any other dependent row) together with their inconsistent right sides
-    s, U = jnp.linalg.eigh(0.5 * (G + G.T))
-    tol = reg * jnp.max(s)
-    s_inv = jnp.where(s > tol, 1.0 / jnp.where(s > tol, s, 1.0), 0.0)
-    lam = U @ (s_inv[:, None] * (U.T @ rhs_l))                                   # (28, nu+1)
+    if solve == "eigen":
+        lam = eigen_forces(G, rhs_l, reg)                                         # (28, nu+1)
+    else:
+        lam = min_norm_forces(G, plantar_normals(J), rhs_l)
     qdd = Minv_rhs + Minv_Jt @ lam
     # contact rows → world forces at the sites (H[i]ᵀ λ_i)
     c0, c1 = N_LOOP_ROWS, N_LOOP_ROWS + N_CONTACT_ROWS

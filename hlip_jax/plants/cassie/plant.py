@@ -350,7 +350,7 @@ def step(params: Params, state: State, cmd: StepCommand,
 def settings(cfg, robots: int = 1) -> tick.Settings:
     """The tick's static settings of a scenario simulated in a batch of ``robots``: the
     CLF-QP's ADMM settings (``cassie.qp_max_iter``, ``qp_eps``, ``qp_loop``, ``qp_linsys``,
-    ``qp_kernel``), the physics' implementation (``cassie.physics``; "warp" raises
+    ``qp_kernel``), the condensation's solve (``cassie.condense``), the physics' implementation (``cassie.physics``; "warp" raises
     ``ValueError`` where warp-lang is missing) and the batch size (Warp's contact buffer holds
     the whole batch's contacts)."""
     if cfg.cassie.physics == "warp":
@@ -361,7 +361,8 @@ def settings(cfg, robots: int = 1) -> tick.Settings:
         early_exit=cfg.cassie.qp_loop != "fixed", linsys=cfg.cassie.qp_linsys,
         block_kernel=cfg.cassie.qp_kernel)
     return tick.Settings(qp=qp_settings, qp_compact=cfg.cassie.qp_loop == "compact",
-                         physics=cfg.cassie.physics, robots=int(robots))
+                         physics=cfg.cassie.physics, robots=int(robots),
+                         condense=cfg.cassie.condense)
 
 
 PLANT = Plant(name="cassie", make_params=make_params, init=init, step=step,

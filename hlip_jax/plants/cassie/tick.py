@@ -106,11 +106,13 @@ class Settings(NamedTuple):
     batch (:func:`hlip_jax.qp.solve`'s ``compact``), the implementation that steps the
     physics, "jax" (MJX-JAX) or "warp" (MJX's Warp implementation, :mod:`warp_physics`), and
     the number of robots stepped together in one vmapped batch (Warp sizes its contact buffer
-    for all of them at once)."""
+    for all of them at once), and how the condensation solves for the constraint forces
+    (:data:`dynamics.SOLVES`, ``cassie.condense``)."""
     qp: object = clfqp.DEFAULT_SETTINGS
     qp_compact: bool = False
     physics: str = "jax"
     robots: int = 1
+    condense: str = "eigen"
 
 
 class TickState(NamedTuple):
@@ -352,9 +354,11 @@ def desired_outputs(ctx: Context, s: TickState, terms, cts: Contacts, u_des) -> 
 
 
 def clf_qp(ctx: Context, s: TickState, dm: mjx.Data, terms, cts: Contacts,
-           des: outputs.Desired, settings: clfqp.qp.Settings, compact: bool = False):
+           des: outputs.Desired, settings: clfqp.qp.Settings, compact: bool = False,
+           condense: str = "eigen"):
     """CLF-QP torques; the foot motor of a foot in the contact set is passive (τ = 0);
-    ``compact``: the batch's QPs with straggler compaction (:class:`Settings`).
+    ``compact``: the batch's QPs with straggler compaction, ``condense``: the condensation's
+    solve (:class:`Settings`).
     Returns (clfqp.Result, outputs.Measured, dynamics.Condensed)."""
     c = cassie()
     lo, hi = ctx.tau_lo, ctx.tau_hi
@@ -363,7 +367,8 @@ def clf_qp(ctx: Context, s: TickState, dm: mjx.Data, terms, cts: Contacts,
         lo = lo.at[motor].set(jnp.where(cts.foot[f], 0.0, lo[motor]))
         hi = hi.at[motor].set(jnp.where(cts.foot[f], 0.0, hi[motor]))
     meas = outputs.measure(terms, dm.qvel, c.index.root_dof)
-    cond = dynamics.condense(terms, c.actuation, cts.sites, dynamics.spring_dofs(c))
+    cond = dynamics.condense(terms, c.actuation, cts.sites, dynamics.spring_dofs(c),
+                             solve=condense)
     return clfqp.solve(meas, des, cond, cts.sites, lo, hi, ctx.gait.gains, s.warm, settings,
                        fallback=ctx.gait.hold_unsolved > 0.5, active=running(s),
                        compact=compact, rho_previous=ctx.gait.rho_previous > 0.5), meas, cond
@@ -443,7 +448,8 @@ def tick(ctx: Context, s: TickState, settings: Settings):
     cts = contacts(ctx, s, dm, terms)
     u_des = stepping_target(ctx, s, terms)
     des = desired_outputs(ctx, s, terms, cts, u_des)
-    res, meas, cond = clf_qp(ctx, s, dm, terms, cts, des, settings.qp, settings.qp_compact)
+    res, meas, cond = clf_qp(ctx, s, dm, terms, cts, des, settings.qp, settings.qp_compact,
+                             settings.condense)
     tau, s = actuate(ctx, s, res.tau)
     d_new = physics(ctx, s, tau, settings.physics, settings.robots)
     e, _ = outputs.errors(meas, des)
