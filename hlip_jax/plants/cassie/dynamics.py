@@ -192,7 +192,8 @@ def condense(terms: model.RobotTerms, actuation, contact, springs=None,
         inverted, which leaves q̈ off by up to 11 % of float64's and λ with up to 1.7e5 N of
         spurious plantar-rod force at the standing keyframe.  The validated controller is this
         one; a projection of the null vectors that fixes it walked fewer 200 N pushes on the
-        validation set (docs/cassie_gait.md, round 11).
+        validation set with an earlier preset (docs/cassie_gait.md, round 11), and as many as
+        this one with the preset now (docs/cassie_validation, "With the GPU settings").
       solve (static): "eigen" (``reg`` applies) or "deflated", that projection with one
         Cholesky factorisation (module doc; ``cassie.condense``).
     """
