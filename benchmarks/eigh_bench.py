@@ -3,7 +3,7 @@ definite matrices (the size of G = J M⁻¹ Jᵀ in :func:`hlip_jax.plants.cassi
 solved against 11 right-hand sides (nu + 1) two ways:
 
     eigh pinv   G⁺ b through the symmetric eigendecomposition, eigenvalues below 1e-9 of the
-                largest dropped (what ``condense`` does)
+                largest dropped (``dynamics.eigen_forces``, what ``condense`` does by default)
     cholesky    (G + 1e-6 I)⁻¹ b through a Cholesky factor
 
 Each is timed as 20 calls in a ``lax.scan`` whose every input depends on the previous call's
@@ -19,6 +19,8 @@ import time
 
 import jax
 import jax.numpy as jnp
+
+from hlip_jax.plants.cassie import dynamics
 
 N_ROWS, N_RHS = 28, 11
 
@@ -44,9 +46,7 @@ def per_call(f, x, calls: int = 20, repeats: int = 3) -> tuple[float, float]:
 def solvers(rhs):
     """name → G ↦ solution (B, 28, 11)."""
     def pinv(G):
-        s, U = jnp.linalg.eigh(G)
-        s_inv = jnp.where(s > 1e-9 * s[..., -1:], 1.0 / s, 0.0)
-        return U @ (s_inv[..., None] * (jnp.swapaxes(U, -1, -2) @ rhs))
+        return jax.vmap(dynamics.eigen_forces)(G, rhs)
 
     def chol(G):
         eye = jnp.eye(N_ROWS, dtype=G.dtype)

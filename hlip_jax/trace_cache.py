@@ -269,7 +269,7 @@ def _evict(keep: Path, budget: int) -> None:
     until the entries total at most ``budget`` bytes; ``keep`` (just written) stays.  Best
     effort: entries another process removes or holds open are skipped."""
     for f, _ in compile_cache.least_recently_used(keep.parent.glob("*" + SUFFIX), budget,
-                                    lambda st: st.st_mtime_ns, keep):
+                                                  lambda st: st.st_mtime_ns, keep):
         f.unlink(missing_ok=True)
 
 
