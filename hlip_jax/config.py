@@ -73,6 +73,11 @@ class MPCConfig:
     w_hull_file: str = spec("", doc="CSV file of a hull W's points, columns plane (1 or 2), c, p, "
                             "v, in the frame mpc.w_frame; read with w_shape = 'hull' only (a "
                             "relative path in a sweep file is read from that file's directory)")
+    viability: bool = spec(False, doc="keep every planned H-LIP state where step lengths "
+                           "within the (tightened) limits can still stop it diverging along the "
+                           "path: its sagittal divergent component between the fixed points of "
+                           "the length band's edges (hlip_jax.mpc; static: adds QP rows)",
+                           choices=(True, False))
     qp_max_iter: int = spec(400, 10, 100000, "ADMM iteration cap per MPC solve")
     qp_eps: float = spec(1e-4, 1e-10, 1e-1, "ADMM absolute/relative tolerance")
 
@@ -300,7 +305,7 @@ class ScenarioConfig:
 
 #: settings that are array shapes or compiled solver settings: one value for every scenario of
 #: a batch (:func:`hlip_jax.rollout.build`) and of a sweep (:mod:`hlip_jax.sweep`)
-STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.qp_max_iter", "mpc.qp_eps",
+STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.viability", "mpc.qp_max_iter", "mpc.qp_eps",
                  "cassie.qp_max_iter", "cassie.qp_eps", "cassie.qp_loop", "cassie.qp_linsys",
                  "cassie.qp_kernel", "cassie.condense",
                  "cassie.physics")

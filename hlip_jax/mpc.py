@@ -21,6 +21,27 @@ the half-plane lies outside the disc, so satisfying it keeps the disc).  The sla
 cost linearly (an exact penalty: for ρ_obs larger than the constraint's multiplier the slack
 is zero whenever the linearised problem is feasible) so the QP is always feasible; a small
 quadratic term keeps P positive definite.  Unused obstacle slots are disabled by infinite bounds.
+
+With ``viability`` (static, ``mpc.viability``) the plan also keeps every planned state where
+steps within the length limits can still stop the H-LIP from diverging along the path
+(:func:`viability_bounds`): the sagittal divergent component ξ = w·[p, v] (w the left
+eigenvector of the S2S map's unstable eigenvalue μ on [p, v], rotated into the heading of the
+state's next step) obeys ξ⁺ = μ ξ + β u, so with step lengths u ∈ [lo, hi] the states that
+some admissible steps keep bounded are those with ξ between the fixed points of the band's
+edges,
+
+    a ≤ ξ_j ≤ c,   a = −M / (μ − 1),   c = −m / (μ − 1),   [m, M] = β [lo, hi]
+
+(:func:`viability_bounds` solves the two-step recursion, for bands that alternate).  The
+bands are the step-length rows' own, tightened by the tube's last (mRPI) row, so a tube's
+nominal stays inside the speeds its tightened steps can brake.  The rows share one slack
+s_ξ ≥ 0 [m/s] with the exact-penalty weight ``obstacle_weight`` (so the QP stays feasible).
+Without them a plan whose steps are capped (a tube's U ⊖ K E) may speed the nominal up beyond
+what its capped steps can brake, which the finite horizon does not see (docs/robust_mpc.md,
+attempt 4).  The lateral plane has no such rows: its width bands alternate in sign with a
+minimum width, and for any ratio w_min / w_max above 1 / (μ² + μ − 1) (≈ 0.07 at μ ≈ 3.3)
+the H-LIP at rest already lies outside their viable set, so the rows would hold no plan
+that starts walking.
 """
 
 from __future__ import annotations
@@ -173,7 +194,55 @@ def _keepout_tightening(params: MPCParams, normal, heading, steps):
     return _support_c(params, -normal[..., 0], -normal[..., 1], heading[:, None], b)
 
 
-def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c, step0=0):
+def divergent_direction(A):
+    """(μ, w): the unstable eigenvalue μ > 1 of the S2S map on [p, v] (A (3, 3) on [c, p, v];
+    the p and v rows do not involve c) and its left eigenvector w = (w_p, 1), scaled so that
+    ξ = w·[p, v] is in m/s:  w A_pv = μ w."""
+    a, b, c, d = A[1, 1], A[1, 2], A[2, 1], A[2, 2]
+    half = 0.5 * (a + d)
+    mu = half + jnp.sqrt(half ** 2 - (a * d - b * c))
+    return mu, jnp.stack([c / (mu - a), jnp.ones_like(mu)])
+
+
+def viability_bounds(mu, beta, lo, hi):
+    """(a, c) (N,): bounds of ξ_j for states whose next steps are u_j ∈ [lo_j, hi_j] and
+    u_{j+1} ∈ [lo_{j+1}, hi_{j+1}] (the last state's next band is the one before it, the
+    bands alternating at most with period two): the fixed points of the two-step map
+    ξ ↦ μ(μ ξ + β u_j) + β u_{j+1} at the bands' ends (module docstring)."""
+    ends = jnp.stack([beta * lo, beta * hi])
+    m, M = ends.min(axis=0), ends.max(axis=0)
+    def following(v):
+        return jnp.concatenate([v[1:], v[-2:-1] if v.shape[0] > 1 else v])
+    m1, M1 = following(m), following(M)
+    den = mu ** 2 - 1.0
+    return -(M1 + mu * M) / den, -(m1 + mu * m) / den
+
+
+def _viability_rows(params: MPCParams, cd: Condensed, preview: Preview, n: int):
+    """Rows (2N, n) and bounds (2N,) of a_j ≤ ξ_j + s_ξ and ξ_j − s_ξ ≤ c_j for the planned
+    states x_1..x_N, ξ the sagittal divergent component in the heading of step j (the last
+    state keeps the last heading), the band the step-length rows' tightened by the tube's
+    last (mRPI) row."""
+    N, dt = cd.free.shape[1], cd.free.dtype
+    mu, w = divergent_direction(params.A)
+    beta = w @ params.B[1:]
+    heading = jnp.concatenate([preview.heading[1:], preview.heading[-1:]])
+    cth, sth = jnp.cos(heading), jnp.sin(heading)
+    tl, _ = _step_tightening(params, heading, cth, sth, jnp.full((N,), 10 ** 6))
+    a, c = viability_bounds(mu, beta, params.length_min + tl, params.length_max - tl)
+    xi_rows = w[0] * cd.gamma[:, 1, :] + w[1] * cd.gamma[:, 2, :]          # (N, N) per plane
+    xi_free = w[0] * cd.free[:, :, 1] + w[1] * cd.free[:, :, 2]            # (2, N)
+    r = jnp.concatenate([xi_rows * cth[:, None], xi_rows * sth[:, None],
+                         jnp.zeros((N, n - 2 * N - 1), dt)], axis=1)
+    f = cth * xi_free[0] + sth * xi_free[1]
+    one = jnp.ones((N, 1), dt)
+    rows = jnp.concatenate([jnp.concatenate([r, one], axis=1), jnp.concatenate([r, -one], axis=1)])
+    big = jnp.full((N,), BIG, dt)
+    return rows, jnp.concatenate([a - f, -big]), jnp.concatenate([big, c - f])
+
+
+def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c, step0=0,
+             viability: bool = False):
     """The condensed QP (P, q, A, l, u) in z = [V^x, V^y, s] (see :func:`condense`).
 
     Args:
@@ -182,6 +251,8 @@ def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c, step0=0):
       prev_c: (N, 2) previously planned COM positions c_1..c_N (obstacle linearisation points).
       step0: absolute index m of x0's step (the tube's rows: step j is m + j, state j+1 is
         m + j + 1; :mod:`hlip_jax.robust`).
+      viability: static; add the viability rows and their slack s_ξ (module docstring):
+        z = [V^x, V^y, s, s_ξ], rows [length, width, obstacles, slacks, ξ (2N), s_ξ ≥ 0].
     """
     N = preview.pos.shape[0]
     O = params.obstacles.shape[0]
@@ -189,22 +260,23 @@ def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c, step0=0):
     cd = condense(params.A, params.B, x0, N)
     free, Om = cd.free, cd.omega
     Gc, Gv = cd.gamma[:, 0, :], cd.gamma[:, 2, :]                  # (N, N) position / velocity rows
-    n = 2 * N + O
+    n_base = 2 * N + O
+    n = n_base + int(viability)
 
     # cost ½ zᵀ P z + qᵀ z  (factor 2 from the squares)
     Hp = 2.0 * (params.w_pos * Gc.T @ Gc + params.w_vel * Gv.T @ Gv + params.alpha * Om.T @ Om)
     P = jnp.zeros((n, n), dt)
     P = P.at[:N, :N].set(Hp).at[N:2 * N, N:2 * N].set(Hp)
-    P = P.at[2 * N:, 2 * N:].set(1e-6 * jnp.eye(O, dtype=dt))
+    P = P.at[2 * N:, 2 * N:].set(1e-6 * jnp.eye(n - 2 * N, dtype=dt))
     ref_err_c = free[:, :, 0] - preview.pos.T                      # (2, N)
     ref_err_v = free[:, :, 2] - preview.vel.T
     qx = 2.0 * (params.w_pos * Gc.T @ ref_err_c.T + params.w_vel * Gv.T @ ref_err_v.T
                 + params.alpha * Om.T @ cd.free_u.T)                # (N, 2)
-    q = jnp.concatenate([qx[:, 0], qx[:, 1], params.obstacle_weight * jnp.ones((O,), dt)])
+    q = jnp.concatenate([qx[:, 0], qx[:, 1], params.obstacle_weight * jnp.ones((n - 2 * N,), dt)])
 
     # step length / width rows on U = free_u + Ω V, rotated into the heading θ_j
     cth, sth = jnp.cos(preview.heading), jnp.sin(preview.heading)
-    zO = jnp.zeros((N, O), dt)
+    zO = jnp.zeros((N, n - 2 * N), dt)
     A_len = jnp.concatenate([Om * cth[:, None], Om * sth[:, None], zO], axis=1)
     A_wid = jnp.concatenate([-Om * sth[:, None], Om * cth[:, None], zO], axis=1)
     len0 = cth * cd.free_u[0] + sth * cd.free_u[1]
@@ -223,7 +295,7 @@ def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c, step0=0):
     normal = obstacle_normals(prev_c, preview.heading, params.obstacles)
     rows_x = normal[:, :, 0:1] * Gc[:, None, :]                     # (N, O, N)
     rows_y = normal[:, :, 1:2] * Gc[:, None, :]
-    rows_s = jnp.broadcast_to(jnp.eye(O, dtype=dt), (N, O, O))
+    rows_s = jnp.broadcast_to(jnp.eye(O, n - 2 * N, dtype=dt), (N, O, n - 2 * N))
     A_obs = jnp.concatenate([rows_x, rows_y, rows_s], axis=2).reshape(N * O, n)
     free_c = free[:, :, 0].T                                         # (N, 2)
     lhs0 = jnp.einsum("jod,jod->jo", normal, free_c[:, None, :] - centre[None, :, :])
@@ -231,14 +303,20 @@ def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c, step0=0):
              + _keepout_tightening(params, normal, preview.heading, step0 + 1 + jnp.arange(N)))
     l_obs = jnp.where(params.obstacle_active[None, :], l_obs, -BIG).reshape(N * O)
     u_obs = jnp.full((N * O,), BIG, dt)
-    A_slack = jnp.concatenate([jnp.zeros((O, 2 * N), dt), jnp.eye(O, dtype=dt)], axis=1)
+    A_slack = jnp.concatenate([jnp.zeros((O, 2 * N), dt), jnp.eye(O, n - 2 * N, dtype=dt)],
+                              axis=1)
     l_slack = jnp.zeros((O,), dt)
     u_slack = jnp.where(params.obstacle_active, BIG, 0.0).astype(dt)
 
-    Aq = jnp.concatenate([A_len, A_wid, A_obs, A_slack], axis=0)
-    lq = jnp.concatenate([l_len, l_wid, l_obs, l_slack])
-    uq = jnp.concatenate([u_len, u_wid, u_obs, u_slack])
-    return P, q, Aq, lq, uq
+    Aq = [A_len, A_wid, A_obs, A_slack]
+    lq = [l_len, l_wid, l_obs, l_slack]
+    uq = [u_len, u_wid, u_obs, u_slack]
+    if viability:
+        A_xi, l_xi, u_xi = _viability_rows(params, cd, preview, n)
+        Aq += [A_xi, jnp.zeros((1, n), dt).at[0, n_base].set(1.0)]
+        lq += [l_xi, jnp.zeros((1,), dt)]
+        uq += [u_xi, jnp.full((1,), BIG, dt)]
+    return P, q, jnp.concatenate(Aq, axis=0), jnp.concatenate(lq), jnp.concatenate(uq)
 
 
 def decode(params: MPCParams, x0, z, N: int):
@@ -255,19 +333,22 @@ def predict(params: MPCParams, x0, u):
 
 
 def solve(params: MPCParams, x0, preview: Preview, stance0, prev_c, settings: qp.Settings,
-          warm_start=None, step0=0) -> Plan:
-    """Build and solve the condensed MPC QP with :func:`hlip_jax.qp.solve`."""
-    N = preview.pos.shape[0]
-    P, q, Aq, lq, uq = build_qp(params, x0, preview, stance0, prev_c, step0)
+          warm_start=None, step0=0, viability: bool = False) -> Plan:
+    """Build and solve the condensed MPC QP with :func:`hlip_jax.qp.solve`; ``slack`` is the
+    largest obstacle slack (the viability slack is z's last entry)."""
+    N, O = preview.pos.shape[0], params.obstacles.shape[0]
+    P, q, Aq, lq, uq = build_qp(params, x0, preview, stance0, prev_c, step0, viability)
     sol = qp.solve(P, q, Aq, lq, uq, settings=settings, warm_start=warm_start)
     u = decode(params, x0, sol.x, N)
-    slack = jnp.max(sol.x[2 * N:], initial=0.0)
+    slack = jnp.max(sol.x[2 * N:2 * N + O], initial=0.0)
     return Plan(u=u, states=predict(params, x0, u), slack=slack, z=sol.x, y=sol.y,
                 status=sol.status, iterations=sol.iterations)
 
 
 def shift_warm_start(plan: Plan, N: int, O: int):
-    """Receding-horizon warm start: drop the executed step, repeat the last one."""
+    """Receding-horizon warm start: drop the executed step, repeat the last one (the
+    per-step rows of every block: length, width, obstacles and, when present, the two ξ
+    blocks; the slacks' rows stay)."""
     def shift(v):
         return jnp.concatenate([v[1:], v[-1:]])
     z = plan.z
@@ -276,5 +357,8 @@ def shift_warm_start(plan: Plan, N: int, O: int):
     ylen, ywid = y[:N], y[N:2 * N]
     yobs = y[2 * N:2 * N + N * O].reshape(N, O)
     yobs = jnp.concatenate([yobs[1:], yobs[-1:]]).reshape(N * O)
-    ys = jnp.concatenate([shift(ylen), shift(ywid), yobs, y[2 * N + N * O:]])
-    return zx, ys
+    base = 2 * N + N * O + O
+    ys = [shift(ylen), shift(ywid), yobs, y[2 * N + N * O:base]]
+    if y.shape[0] > base:                         # the viability rows and their slack's row
+        ys += [shift(y[base + k * N:base + (k + 1) * N]) for k in range(2)] + [y[-1:]]
+    return zx, jnp.concatenate(ys)

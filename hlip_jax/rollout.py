@@ -69,6 +69,7 @@ class Static(NamedTuple):
     horizon: int
     settings: qp.Settings
     plant: str
+    viability: bool = False                        # the MPC's viability rows (mpc.viability)
     plant_settings: Optional[object] = None   # the plant's static settings (Cassie: tick.Settings)
     keep_ticks: bool = False                       # also return the plant's per-tick log
     progress: bool = False                         # report each finished step (progress.py)
@@ -257,6 +258,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
                            adaptive_rho_interval=50)
     plant_settings = plants.load(first.plant).settings(first, len(configs))
     return batch, Static(n_steps=K, horizon=horizon, settings=settings, plant=first.plant,
+                         viability=first.mpc.viability,
                          plant_settings=plant_settings)
 
 
@@ -280,7 +282,7 @@ def _plan(scn: Scenario, static: Static, x_start, t_start, stance, prev_plan, st
     prev_c = prev_plan.states[:, :, 0]
     ws = mpc.shift_warm_start(prev_plan, N, O)
     new = mpc.solve(scn.mpc, x_start, prev, stance, prev_c, static.settings, warm_start=ws,
-                    step0=step)
+                    step0=step, viability=static.viability)
     ok = (new.status == qp.SOLVED) | (new.status == qp.SOLVED_INACCURATE)
     ok = ok & jnp.all(jnp.isfinite(new.u))
     shifted_u = jnp.concatenate([prev_plan.u[1:], prev_plan.u[-1:]])
@@ -290,10 +292,11 @@ def _plan(scn: Scenario, static: Static, x_start, t_start, stance, prev_plan, st
     return result, ok
 
 
-def _cold_plan(scn: Scenario, N: int) -> mpc.Plan:
-    """The 'previous plan' of the first solve: resting on the start, zero warm start."""
+def _cold_plan(scn: Scenario, N: int, viability: bool) -> mpc.Plan:
+    """The 'previous plan' of the first solve: resting on the start, zero warm start (sized
+    for the MPC's QP, :func:`hlip_jax.mpc.build_qp`)."""
     O, dt = scn.mpc.obstacles.shape[0], scn.x0.dtype
-    n_var, n_con = 2 * N + O, 2 * N + N * O + O
+    n_var, n_con = 2 * N + O + int(viability), 2 * N + N * O + O + (2 * N + 1) * int(viability)
     return mpc.Plan(u=jnp.zeros((N, 2), dt), states=jnp.broadcast_to(scn.x0, (N, 2, 3)),
                     slack=jnp.zeros((), dt), z=jnp.zeros((n_var,), dt),
                     y=jnp.zeros((n_con,), dt), status=jnp.int32(1), iterations=jnp.int32(0))
@@ -346,7 +349,7 @@ def _start(scn: Scenario, static: Static):
     dt = scn.x0.dtype
     stance0 = jnp.int32(STANCE_RIGHT)
     plan0, ok0 = _plan(scn, static, scn.x0, jnp.zeros((), dt), stance0,
-                       _cold_plan(scn, static.horizon), 0)
+                       _cold_plan(scn, static.horizon, static.viability), 0)
     u_h0 = plan0.u[0]
     u_r0 = u_h0  # x_R,0 = x_H,0
     heading0 = paths.reference(scn.path, jnp.zeros((), dt)).heading
