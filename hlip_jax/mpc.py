@@ -39,9 +39,10 @@ s_ξ ≥ 0 [m/s] with the exact-penalty weight ``obstacle_weight`` (so the QP st
 Without them a plan whose steps are capped (a tube's U ⊖ K E) may speed the nominal up beyond
 what its capped steps can brake, which the finite horizon does not see (docs/robust_mpc.md,
 attempt 4).  The lateral plane has no such rows: its width bands alternate in sign with a
-minimum width, and for any ratio w_min / w_max above 1 / (μ² + μ − 1) (≈ 0.07 at μ ≈ 3.3)
-the H-LIP at rest already lies outside their viable set, so the rows would hold no plan
-that starts walking.
+minimum width, and for a ratio w_min / w_max above 1 / μ (the interval of a state whose next
+step is a left one is |β| [μ w_min − w_max, μ w_max − w_min] / (μ² − 1)) the H-LIP at rest
+lies outside their viable set, so the rows would hold no plan that starts walking; a tube's
+tightened width band has such a ratio (Cassie's hull tube: [0.25, 0.49] m).
 """
 
 from __future__ import annotations

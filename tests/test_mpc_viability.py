@@ -157,3 +157,22 @@ def test_a_capped_plan_keeps_the_hlip_walking_only_with_the_rows(tmp_path):
     valid, x, n = out["true"]
     assert valid.sum() == n
     assert np.abs(x[valid][:, 0, 2]).max() <= 0.5
+
+
+@pytest.mark.parametrize("w_min, w_max", [(0.1, 0.645), (0.1, 0.3), (0.25, 0.49), (0.05, 0.5)])
+def test_lateral_bands_hold_the_hlip_at_rest_only_below_one_over_mu(w_min, w_max):
+    """Closed form of the alternating width bands' interval (mpc's docstring, why the lateral
+    plane has no rows): |β| [μ w_min − w_max, μ w_max − w_min] / (μ² − 1), so ξ = 0 (rest) is
+    inside iff w_min / w_max ≤ 1 / μ; float64 round-off (1e-12)."""
+    A, B = hlip.s2s_matrices(0.8, 0.3, 0.1)
+    mu, w = mpc.divergent_direction(A)
+    mu, beta = float(mu), float(np.asarray(w) @ np.asarray(B)[1:])
+    assert beta < 0
+    lo = jnp.array([w_min, -w_max] * 3)
+    hi = jnp.array([w_max, -w_min] * 3)
+    a, c = (np.asarray(v) for v in mpc.viability_bounds(mu, beta, lo, hi))
+    k = abs(beta) / (mu ** 2 - 1.0)
+    np.testing.assert_allclose(a[0::2], k * (mu * w_min - w_max), atol=1e-12)
+    np.testing.assert_allclose(c[0::2], k * (mu * w_max - w_min), atol=1e-12)
+    np.testing.assert_allclose(a[1::2], -c[0::2], atol=1e-12)
+    assert (a[0] <= 0.0) == (w_min / w_max <= 1.0 / mu)
