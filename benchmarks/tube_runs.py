@@ -3,9 +3,10 @@ lies outside a hull W (docs/robust_mpc.md, attempts 4 and 5).
 
     python benchmarks/tube_runs.py RESULTS_DIR sweeps/data/cassie_tube_hull.csv
 
-Rows: nominal / tube (``mpc.robust`` in the scenario's name) × path: runs that walked, runs
-whose COM entered a disc at an impact (``min_clearance`` < 0), the smallest clearance [m], the
-median RMS distance to the path [m] and the runs' MPC QPs not solved to tolerance.  Then, over
+Rows: nominal / tube (the scenario's ``mpc.robust``) × path (× peak speed where swept): runs
+that walked, runs whose COM entered a disc at an impact (``min_clearance`` < 0), the smallest
+clearance [m], the median RMS distance to the path [m] and the runs' MPC QPs not solved to
+tolerance.  Then, over
 the tube runs' steps, how many have a disturbance outside conv(±points) in either plane
 (facets of scipy's convex hull: a point is outside when it violates one) and the largest
 gauge, the factor by which W would have to grow to hold every sample.
@@ -21,14 +22,27 @@ from collections import defaultdict
 import numpy as np
 
 
+def _tube_names(out_dir: str) -> list[str]:
+    """Names of the scenarios whose config has ``mpc.robust`` (from the manifest)."""
+    from hlip_jax import store
+    return [c["name"] for c in store.read_manifest(out_dir)["configs"] if c["mpc"]["robust"]]
+
+
+def _speed(name: str) -> str:
+    """``path.peak_speed=…`` of a swept name ('' when not swept)."""
+    swept = name.split("/", 1)[1].split(",") if "/" in name else []
+    return next((" at " + v.split("=")[1] + " m/s" for v in swept if v.startswith("path.peak_speed=")), "")
+
+
 def table(out_dir: str) -> list[str]:
-    """Markdown rows, one per (MPC, path) and one per MPC for all paths together."""
+    """Markdown rows, one per (MPC, path, swept speed) and one per MPC for all together."""
     with open(os.path.join(out_dir, "summary.csv"), newline="") as f:
         rows = list(csv.DictReader(f))
+    tube = set(_tube_names(out_dir))
     groups = defaultdict(list)
     for r in rows:
-        mpc = "tube" if "mpc.robust=True" in r["name"] else "nominal"
-        groups[(mpc, r["name"].split("/")[0])].append(r)
+        mpc = "tube" if r["name"] in tube else "nominal"
+        groups[(mpc, r["name"].split("/")[0] + _speed(r["name"]))].append(r)
         groups[(mpc, "all")].append(r)
     lines = []
     for (mpc, path), rs in sorted(groups.items()):
@@ -48,7 +62,7 @@ def outside_hull(out_dir: str, hull_file: str) -> tuple[int, int, list[float]]:
 
     from hlip_jax import robust, store
     names = [c["name"] for c in store.read_manifest(out_dir)["configs"]]
-    tube = [i for i, n in enumerate(names) if "mpc.robust=True" in n]
+    tube = [names.index(n) for n in _tube_names(out_dir)]
     facets = [ConvexHull(np.concatenate([v, -v])).equations for v in robust.read_hull(hull_file)]
     outside, total, worst = 0, 0, [0.0, 0.0]
     for i in tube:
