@@ -207,9 +207,9 @@ def divergent_direction(A):
 
 def viability_bounds(mu, beta, lo, hi):
     """(a, c) (N,): bounds of ξ_j for states whose next steps are u_j ∈ [lo_j, hi_j] and
-    u_{j+1} ∈ [lo_{j+1}, hi_{j+1}] (the last state's next band is the one before it, the
-    bands alternating at most with period two): the fixed points of the two-step map
-    ξ ↦ μ(μ ξ + β u_j) + β u_{j+1} at the bands' ends (module docstring)."""
+    u_{j+1} ∈ [lo_{j+1}, hi_{j+1}]: the fixed points of the two-step map
+    ξ ↦ μ(μ ξ + β u_j) + β u_{j+1} at the bands' ends (module docstring).  The bands repeat
+    with period one or two, so the last state's second band is the band before its first."""
     ends = jnp.stack([beta * lo, beta * hi])
     m, M = ends.min(axis=0), ends.max(axis=0)
     def following(v):
@@ -229,7 +229,8 @@ def _viability_rows(params: MPCParams, cd: Condensed, preview: Preview, n: int):
     beta = w @ params.B[1:]
     heading = jnp.concatenate([preview.heading[1:], preview.heading[-1:]])
     cth, sth = jnp.cos(heading), jnp.sin(heading)
-    tl, _ = _step_tightening(params, heading, cth, sth, jnp.full((N,), 10 ** 6))
+    last = jnp.full((N,), params.e_u.shape[0] - 1)                      # the mRPI row
+    tl, _ = _step_tightening(params, heading, cth, sth, last)
     a, c = viability_bounds(mu, beta, params.length_min + tl, params.length_max - tl)
     xi_rows = w[0] * cd.gamma[:, 1, :] + w[1] * cd.gamma[:, 2, :]          # (N, N) per plane
     xi_free = w[0] * cd.free[:, :, 1] + w[1] * cd.free[:, :, 2]            # (2, N)
@@ -244,7 +245,8 @@ def _viability_rows(params: MPCParams, cd: Condensed, preview: Preview, n: int):
 
 def build_qp(params: MPCParams, x0, preview: Preview, stance0, prev_c, step0=0,
              viability: bool = False):
-    """The condensed QP (P, q, A, l, u) in z = [V^x, V^y, s] (see :func:`condense`).
+    """The condensed QP (P, q, A, l, u) in z = [V^x, V^y, s] (see :func:`condense`; with
+    ``viability`` z = [V^x, V^y, s, s_ξ]).
 
     Args:
       x0: (2, 3) current state per plane (x plane, y plane).
