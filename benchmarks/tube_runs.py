@@ -22,27 +22,28 @@ from collections import defaultdict
 import numpy as np
 
 
-def _tube_names(out_dir: str) -> list[str]:
-    """Names of the scenarios whose config has ``mpc.robust`` (from the manifest)."""
+def _configs(out_dir: str) -> list[dict]:
+    """The results directory's scenario configs, in order (its manifest)."""
     from hlip_jax import store
-    return [c["name"] for c in store.read_manifest(out_dir)["configs"] if c["mpc"]["robust"]]
+    return store.read_manifest(out_dir)["configs"]
 
 
-def _speed(name: str) -> str:
-    """``path.peak_speed=…`` of a swept name ('' when not swept)."""
-    swept = name.split("/", 1)[1].split(",") if "/" in name else []
-    return next((" at " + v.split("=")[1] + " m/s" for v in swept if v.startswith("path.peak_speed=")), "")
+def _group(config: dict) -> str:
+    """The path's name, and the peak speed where the sweep varies it."""
+    speed = config.get("swept", {}).get("path.peak_speed")
+    return config["name"].split("/")[0] + ("" if speed is None else f" at {speed:g} m/s")
 
 
 def table(out_dir: str) -> list[str]:
     """Markdown rows, one per (MPC, path, swept speed) and one per MPC for all together."""
     with open(os.path.join(out_dir, "summary.csv"), newline="") as f:
         rows = list(csv.DictReader(f))
-    tube = set(_tube_names(out_dir))
+    configs = {c["name"]: c for c in _configs(out_dir)}
     groups = defaultdict(list)
     for r in rows:
-        mpc = "tube" if r["name"] in tube else "nominal"
-        groups[(mpc, r["name"].split("/")[0] + _speed(r["name"]))].append(r)
+        c = configs[r["name"]]
+        mpc = "tube" if c["mpc"]["robust"] else "nominal"
+        groups[(mpc, _group(c))].append(r)
         groups[(mpc, "all")].append(r)
     lines = []
     for (mpc, path), rs in sorted(groups.items()):
@@ -61,8 +62,7 @@ def outside_hull(out_dir: str, hull_file: str) -> tuple[int, int, list[float]]:
     from scipy.spatial import ConvexHull
 
     from hlip_jax import robust, store
-    names = [c["name"] for c in store.read_manifest(out_dir)["configs"]]
-    tube = [names.index(n) for n in _tube_names(out_dir)]
+    tube = [i for i, c in enumerate(_configs(out_dir)) if c["mpc"]["robust"]]
     facets = [ConvexHull(np.concatenate([v, -v])).equations for v in robust.read_hull(hull_file)]
     outside, total, worst = 0, 0, [0.0, 0.0]
     for i in tube:
