@@ -27,21 +27,21 @@ HEADER = ("| batch | devices | CLF-QP loop, physics | steps | compile + first [s
 
 def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: str = "while",
             physics: str = "jax", qp_linsys: str = "cholesky", qp_rho_start: str = "previous",
-            qp_kernel: str = "xla", condense: str = "eigen"):
+            qp_kernel: str = "xla", condense: str = "eigen", terms: str = "mjx"):
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
     of docs/cassie_gait.md (the default gait preset's H-LIP timing and 3-state LQR stepping
     gain), the CLF-QP loop ``qp_loop``, its linear solve ``qp_linsys``, its iterations' kernel
     ``qp_kernel`` and the physics implementation ``physics`` (``CassieConfig.qp_loop``,
     ``qp_linsys``, ``qp_kernel``, ``physics``), the CLF-QP's starting step size
-    ``qp_rho_start`` (``CassieConfig.qp_rho_start``) and the condensation's solve ``condense``
-    (``CassieConfig.condense``)."""
+    ``qp_rho_start`` (``CassieConfig.qp_rho_start``), the condensation's solve ``condense``
+    (``CassieConfig.condense``) and the whole-body terms ``terms`` (``CassieConfig.terms``)."""
     from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
     from hlip_jax.plants.cassie import gaits
     W = gaits.preset(gaits.DEFAULT)
     budget = {} if qp_max_iter is None else {"qp_max_iter": qp_max_iter}
     cassie = CassieConfig(qp_loop=qp_loop, physics=physics, qp_linsys=qp_linsys,
                           qp_rho_start=qp_rho_start, qp_kernel=qp_kernel, condense=condense,
-                          **budget)
+                          terms=terms, **budget)
     return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
                            hlip=HLIPConfig(z0=W["hlip.z0"], t_ssp=W["hlip.t_ssp"],
                                            t_dsp=W["hlip.t_dsp"]),
@@ -184,6 +184,8 @@ def _variant(static, rho_start: str = "previous") -> str:
         solve += ", fused kernel"
     if static.plant_settings.condense != "eigen":
         solve += f", {static.plant_settings.condense} condensation"
+    if static.plant_settings.terms != "mjx":
+        solve += f", {static.plant_settings.terms} terms"
     rho = ", ρ from 0.1 every tick" if rho_start == "default" else ""
     return f"{_loop(static)} loop{solve}{rho}, {static.plant_settings.physics} physics"
 
@@ -198,7 +200,7 @@ def _row(static, B: int, T: float, steps: int, prate: float, n_dev: int, t_first
     return dict(batch=B, devices=n_dev, qp_loop=_loop(static),
                 qp_linsys=static.plant_settings.qp.linsys,
                 qp_kernel=static.plant_settings.qp.block_kernel,
-                condense=static.plant_settings.condense,
+                condense=static.plant_settings.condense, terms=static.plant_settings.terms,
                 physics=static.plant_settings.physics, steps=static.n_steps,
                 compile_first_s=t_first, run_s=t_run,
                 robot_s_per_s=B * static.n_steps * T / t_run, physics_steps_per_s=rate,
@@ -217,13 +219,15 @@ def _table_row(r: dict, variant: str) -> str:
 
 
 def _variants(physics, qp_loops, qp_linsys, qp_kernels, qp_rho_start,
-              condense=("eigen",)) -> list[dict]:
+              condense=("eigen",), terms=("mjx",)) -> list[dict]:
     """The keyword arguments of :func:`configs` for every combination of the benchmark's
     variant lists, without the fused kernel on Cholesky solves (it needs the inverse)."""
     import itertools
-    combos = itertools.product(physics, qp_loops, qp_linsys, qp_kernels, qp_rho_start, condense)
-    return [dict(physics=ph, qp_loop=q, qp_linsys=ls, qp_kernel=k, qp_rho_start=r, condense=c)
-            for ph, q, ls, k, r, c in combos if not (k == "fused" and ls != "inverse")]
+    combos = itertools.product(physics, qp_loops, qp_linsys, qp_kernels, qp_rho_start, condense,
+                               terms)
+    return [dict(physics=ph, qp_loop=q, qp_linsys=ls, qp_kernel=k, qp_rho_start=r, condense=c,
+                 terms=t)
+            for ph, q, ls, k, r, c, t in combos if not (k == "fused" and ls != "inverse")]
 
 
 def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] = (1,),
@@ -234,11 +238,13 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
                 qp_linsys: Sequence[str] = ("cholesky",),
                 qp_rho_start: Sequence[str] = ("previous",),
                 qp_kernels: Sequence[str] = ("xla",),
-                condense: Sequence[str] = ("eigen",)) -> list[dict]:
+                condense: Sequence[str] = ("eigen",),
+                terms: Sequence[str] = ("mjx",)) -> list[dict]:
     """Run the benchmark for every batch size × CLF-QP loop (``qp_loops``, values of
     ``CassieConfig.qp_loop``) × linear solve (``qp_linsys``, ``CassieConfig.qp_linsys``) ×
     iterations' kernel (``qp_kernels``, ``CassieConfig.qp_kernel``; "fused" with the
     "inverse" solve only) × condensation solve (``condense``, ``CassieConfig.condense``) ×
+    whole-body terms (``terms``, ``CassieConfig.terms``) ×
     starting step size (``qp_rho_start``, ``CassieConfig.qp_rho_start``) ×
     physics implementation (``physics``, values of ``CassieConfig.physics``) × device count; ``emit`` gets the markdown table (header, then
     one row per run).  With ``admm`` every batch size is also run (one device, the first
@@ -259,7 +265,7 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
     for B in batches:
         builds = [(v["qp_rho_start"], rollout.build(configs(B, duration, **v)))
                   for v in _variants(physics, qp_loops, qp_linsys, qp_kernels, qp_rho_start,
-                                     condense)]
+                                     condense, terms)]
         batch, static = builds[0][1]
         T = float(np.asarray(batch.t_ssp[0] + batch.t_dsp[0]))
         ticks = static.n_steps * int(round(T / control.CONTROL_DT))

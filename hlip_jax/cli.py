@@ -11,7 +11,7 @@
     hlip-sweep s2s DIR [--scenarios REGEX] [--skip K]   (the robot's S2S map, least squares)
     hlip-sweep whull DIR --out FILE [--scenarios REGEX]  (a hull W for the tube MPC)
     hlip-sweep coverage DIR [--q Q] [--train-on FIELD=V1,V2]
-    hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...] [--qp-linsys ...] [--qp-kernel ...] [--condense ...]
+    hlip-sweep bench [--batch N ...] [--duration S] [--devices N ...] [--admm] [--qp-loop ...] [--qp-linsys ...] [--qp-kernel ...] [--condense ...] [--terms ...]
                      [--qp-rho-start ...]
 
 SWEEP is a path to a TOML sweep file or the name of a shipped one (``paper`` for
@@ -242,6 +242,9 @@ def _bench_parser(sub) -> None:
     b.add_argument("--condense", nargs="+", default=["eigen"], choices=("eigen", "deflated"),
                    metavar="SOLVE", help="condensation solves to time, each on the same batch in "
                    "this process (cassie.condense: eigen, deflated)")
+    b.add_argument("--terms", nargs="+", default=["mjx"], choices=("mjx", "dense"),
+                   metavar="TERMS", help="whole-body terms to time, each on the same batch in "
+                   "this process (cassie.terms: mjx, dense)")
     b.add_argument("--physics", nargs="+", default=["jax"], choices=("jax", "warp"),
                    metavar="IMPL", help="physics implementations to time, each on the same batch in "
                    "this process (cassie.physics: jax, warp; warp needs warp-lang)")
@@ -684,7 +687,8 @@ def cmd_bench(args) -> int:
     write(bench.closed_loop(args.batch, args.duration, args.devices, admm=args.admm,
                             qp_loops=args.qp_loop, physics=args.physics, on_row=write,
                             qp_linsys=args.qp_linsys, qp_rho_start=args.qp_rho_start,
-                            qp_kernels=args.qp_kernel, condense=args.condense))
+                            qp_kernels=args.qp_kernel, condense=args.condense,
+                            terms=args.terms))
     return EXIT_OK
 
 

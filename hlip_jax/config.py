@@ -210,6 +210,12 @@ class CassieConfig:
                          "projected out and one Cholesky factorisation: float32 within 3e-5 of "
                          "float64 and cheaper on a GPU; its walking: docs/cassie_validation)",
                          choices=("eigen", "deflated"))
+    terms: str = spec("mjx", doc="how the controller computes its whole-body terms (kinematics, "
+                      "mass matrix, bias, Jacobians) each tick (static): by MJX's own stages "
+                      "('mjx', the validated controller's) or by dense array programs over the "
+                      "fixed body tree ('dense': the same terms within float rounding, tested "
+                      "against C MuJoCo, without the tree scatters that XLA's deterministic GPU "
+                      "operations sort; BENCHMARKS.md)", choices=("mjx", "dense"))
     qp_rho_start: str = spec("previous", doc="the ADMM step size rho each tick's CLF-QP starts from: "
                              "the previous tick's final rho ('previous', as OSQP keeps rho between "
                              "warm-started solves; about 40 % fewer iterations per tick, "
@@ -307,7 +313,7 @@ class ScenarioConfig:
 #: a batch (:func:`hlip_jax.rollout.build`) and of a sweep (:mod:`hlip_jax.sweep`)
 STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.viability", "mpc.qp_max_iter", "mpc.qp_eps",
                  "cassie.qp_max_iter", "cassie.qp_eps", "cassie.qp_loop", "cassie.qp_linsys",
-                 "cassie.qp_kernel", "cassie.condense",
+                 "cassie.qp_kernel", "cassie.condense", "cassie.terms",
                  "cassie.physics")
 
 

@@ -48,6 +48,7 @@ import mujoco
 import numpy as np
 
 from hlip_jax.plants.cassie.mjx_import import mjx
+from hlip_jax.plants.cassie import tree_terms
 from hlip_jax import resources
 
 ASSET_DIR = resources.data_dir("assets", "cassie")
@@ -65,6 +66,9 @@ CONTACT_SITES = ("left_toe", "left_heel", "right_toe", "right_heel")
 #: connect constraints in the order used by every (4, ...) / (12, ...) array here
 LOOPS = ("left_achilles_loop", "left_plantar_loop", "right_achilles_loop", "right_plantar_loop")
 FOOT_SPHERE_RADIUS = 0.02  # [m] contact spheres; the site is the sphere centre
+#: how :func:`smooth` computes the smooth terms (``cassie.terms``): MJX's own stages ("mjx")
+#: or :mod:`tree_terms`' dense array programs ("dense"; the same terms, no tree scatters)
+TERMS = ("mjx", "dense")
 
 
 class LegIndex(NamedTuple):
@@ -201,6 +205,7 @@ class Cassie:
     loop_anchor1: np.ndarray     # (4, 3) anchor in body1's frame [m]
     loop_anchor2: np.ndarray     # (4, 3) anchor in body2's frame [m]
     site_body: np.ndarray        # (nsite,) body of each site
+    tree: tree_terms.Tree        # static topology of the dense smooth terms
 
 
 def load(path: Optional[str | pathlib.Path] = None, impl: str = "jax") -> Cassie:
@@ -223,7 +228,7 @@ def load(path: Optional[str | pathlib.Path] = None, impl: str = "jax") -> Cassie
         body_mask=_ancestor_mask(m), body_mass=m.body_mass.copy(),
         loop_body1=m.eq_obj1id[loops].copy(), loop_body2=m.eq_obj2id[loops].copy(),
         loop_anchor1=m.eq_data[loops, 0:3].copy(), loop_anchor2=m.eq_data[loops, 3:6].copy(),
-        site_body=m.site_bodyid.copy(),
+        site_body=m.site_bodyid.copy(), tree=tree_terms.tree_of(m),
     )
 
 
@@ -332,22 +337,30 @@ def make_batch(cassie: Cassie, batch_size: int, key: jax.Array, qpos_noise: floa
     return batch
 
 
-def smooth(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None) -> mjx.Data:
+def smooth(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None,
+           terms: str = "mjx") -> tree_terms.Smooth:
     """Position- and velocity-dependent smooth quantities for ``d.qpos``, ``d.qvel``.
 
-    Runs kinematics, COM positions, composite inertia (mass matrix), COM velocities
-    (``cdof_dot``), passive forces and RNE bias — no collision, no constraint solve.
-    Call it on a state before the functions below (after ``mjx.step`` the stored kinematics
-    belong to the *previous* qpos). The functions below read only fields set here.
+    Kinematics, COM positions, composite inertia (mass matrix), COM velocities
+    (``cdof_dot``), passive forces and RNE bias — no collision, no constraint solve — by
+    MJX's stages (``terms = "mjx"``) or by :func:`tree_terms.smooth` (``"dense"``; equal to C
+    MuJoCo's within float rounding, ``tests/test_tree_terms.py``).  Call it on a state before
+    the functions below (after ``mjx.step`` the stored kinematics belong to the *previous*
+    qpos); they read only its fields (the same names on ``mjx.Data``).
     """
+    if terms not in TERMS:
+        raise ValueError(f"terms: {terms!r}; allowed: {TERMS}")
     mx = cassie.mjx_model if mx is None else mx
+    if terms == "dense":
+        return tree_terms.smooth(cassie.tree, mx, d.qpos, d.qvel)
     d = mjx.kinematics(mx, d)
     d = mjx.com_pos(mx, d)
     d = mjx.crb(mx, d)
     d = mjx.com_vel(mx, d)
     d = mjx.passive(mx, d)
     d = mjx.rne(mx, d)
-    return d
+    return tree_terms.Smooth(**{f: (mjx.full_m(mx, d) if f == "qM" else getattr(d, f))
+                                for f in tree_terms.Smooth._fields})
 
 
 # ----------------------------------------------------------------------------- dynamics
@@ -598,14 +611,16 @@ def foot_contact(terms: RobotTerms, side) -> FootContact:
     )
 
 
-def robot_terms(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None) -> RobotTerms:
-    """Runs :func:`smooth` on ``d`` (its qpos, qvel) and gathers :class:`RobotTerms`."""
-    d = smooth(cassie, d, mx)
+def robot_terms(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None,
+                terms: str = "mjx") -> RobotTerms:
+    """Runs :func:`smooth` on ``d`` (its qpos, qvel; ``terms`` as there, static) and gathers
+    :class:`RobotTerms`."""
+    d = smooth(cassie, d, mx, terms)
     R = pelvis_rotation(cassie, d)
     w = d.qvel[cassie.index.root_dof + 3: cassie.index.root_dof + 6]
     pelvis, feet = cassie.index.pelvis_body, list(cassie.index.foot_body)
     return RobotTerms(
-        M=mass_matrix(cassie, d, mx), bias=bias_force(d), passive=passive_force(d),
+        M=d.qM, bias=bias_force(d), passive=passive_force(d),
         com=com_position(cassie, d), com_vel=com_velocity(cassie, d),
         com_J=com_jacobian(cassie, d), com_jdqd=com_jdot_qdot(cassie, d),
         site_pos=site_positions(cassie, d), site_J=site_jacobians(cassie, d),

@@ -350,8 +350,8 @@ def step(params: Params, state: State, cmd: StepCommand,
 def settings(cfg, robots: int = 1) -> tick.Settings:
     """The tick's static settings of a scenario simulated in a batch of ``robots``: the
     CLF-QP's ADMM settings (``cassie.qp_max_iter``, ``qp_eps``, ``qp_loop``, ``qp_linsys``,
-    ``qp_kernel``), the condensation's solve (``cassie.condense``), the physics'
-    implementation (``cassie.physics``; "warp" raises ``ValueError`` where warp-lang is
+    ``qp_kernel``), the condensation's solve (``cassie.condense``), how the whole-body terms
+    are computed (``cassie.terms``), the physics' implementation (``cassie.physics``; "warp" raises ``ValueError`` where warp-lang is
     missing) and the batch size (Warp's contact buffer holds the whole batch's contacts)."""
     if cfg.cassie.physics == "warp":
         from hlip_jax.plants.cassie import warp_physics
@@ -362,7 +362,7 @@ def settings(cfg, robots: int = 1) -> tick.Settings:
         block_kernel=cfg.cassie.qp_kernel)
     return tick.Settings(qp=qp_settings, qp_compact=cfg.cassie.qp_loop == "compact",
                          physics=cfg.cassie.physics, robots=int(robots),
-                         condense=cfg.cassie.condense)
+                         condense=cfg.cassie.condense, terms=cfg.cassie.terms)
 
 
 PLANT = Plant(name="cassie", make_params=make_params, init=init, step=step,

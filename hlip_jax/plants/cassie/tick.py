@@ -106,13 +106,15 @@ class Settings(NamedTuple):
     batch (:func:`hlip_jax.qp.solve`'s ``compact``), the implementation that steps the
     physics, "jax" (MJX-JAX) or "warp" (MJX's Warp implementation, :mod:`warp_physics`), and
     the number of robots stepped together in one vmapped batch (Warp sizes its contact buffer
-    for all of them at once), and how the condensation solves for the constraint forces
-    (:data:`dynamics.SOLVES`, ``cassie.condense``)."""
+    for all of them at once), how the condensation solves for the constraint forces
+    (:data:`dynamics.SOLVES`, ``cassie.condense``) and how the whole-body terms are computed
+    (:data:`model.TERMS`, ``cassie.terms``)."""
     qp: object = clfqp.DEFAULT_SETTINGS
     qp_compact: bool = False
     physics: str = "jax"
     robots: int = 1
     condense: str = "eigen"
+    terms: str = "mjx"
 
 
 class TickState(NamedTuple):
@@ -209,8 +211,9 @@ def sense(ctx: Context, s: TickState):
     return dm, s._replace(real=_if_running(s, real, s.real))
 
 
-def measure(ctx: Context, dm: mjx.Data) -> model.RobotTerms:
-    return model.robot_terms(cassie(), dm, ctx.mx)
+def measure(ctx: Context, dm: mjx.Data, terms: str = "mjx") -> model.RobotTerms:
+    """Whole-body terms at the measured state (``terms``: :class:`Settings`)."""
+    return model.robot_terms(cassie(), dm, ctx.mx, terms)
 
 
 def estimate(ctx: Context, s: TickState, terms) -> TickState:
@@ -442,7 +445,7 @@ def tick(ctx: Context, s: TickState, settings: Settings):
     """One control tick: the stages of the module doc.  Returns (TickState, TickLog)."""
     gap = proximity(s)
     dm, s = sense(ctx, s)
-    terms = measure(ctx, dm)
+    terms = measure(ctx, dm, settings.terms)
     s = estimate(ctx, s, terms)
     s = lift_off(ctx, s, terms)
     cts = contacts(ctx, s, dm, terms)
