@@ -122,7 +122,7 @@ def _sweep_overrides(p: argparse.ArgumentParser) -> None:
                    "step count)")
     p.add_argument("--limit", type=_positive_int, metavar="N",
                    help="keep only the first N scenarios")
-    p.add_argument("--physics", choices=("jax", "warp"),
+    p.add_argument("--physics", choices=_cassie_choices("physics"),
                    help="override cassie.physics in the sweep's [base]: the implementation that "
                    "steps the simulated Cassie (warp needs warp-lang: pip install 'hlip_jax[warp]'); "
                    "like --plant and --duration, a path or grid axis that sets it keeps its own value")
@@ -210,6 +210,31 @@ def _ticks_parser(sub) -> None:
     _cache_options(tk)
 
 
+#: the bench's variant flags: (CassieConfig field, metavar, what is timed, a note on the values)
+_BENCH_VARIANTS = (
+    ("qp_loop", "LOOP", "CLF-QP block loops", ""),
+    ("qp_linsys", "SOLVE", "CLF-QP linear solves", ""),
+    ("qp_kernel", "KERNEL", "CLF-QP iteration kernels",
+     "; fused runs with the inverse linear solve only, so it needs --qp-linsys inverse"),
+    ("qp_rho_start", "RHO", "CLF-QP starting step sizes", ""),
+    ("condense", "SOLVE", "condensation solves", ""),
+    ("terms", "TERMS", "whole-body terms", ""),
+    ("physics", "IMPL", "physics implementations", "; warp needs warp-lang"),
+)
+
+
+def _cassie_choices(field: str) -> tuple:
+    """The allowed values of ``CassieConfig.<field>`` (one list for the file and the CLI)."""
+    from hlip_jax import config
+    return tuple(config.field_spec(config.CassieConfig, field)["choices"])
+
+
+def _cassie_default(field: str) -> str:
+    """The default of ``CassieConfig.<field>``: what the bench times without the flag."""
+    from hlip_jax import config
+    return getattr(config.CassieConfig(), field)
+
+
 def _bench_parser(sub) -> None:
     """The ``bench`` subcommand's arguments."""
     b = sub.add_parser("bench", help="closed-loop Cassie throughput against physics-only MJX",
@@ -225,29 +250,12 @@ def _bench_parser(sub) -> None:
     b.add_argument("--admm", action="store_true",
                    help="also time each batch with the CLF-QP's ADMM budget cut to one "
                    "convergence check and report the ADMM iterations' share of the tick")
-    b.add_argument("--qp-loop", nargs="+", default=["while"], choices=("while", "fixed", "compact"),
-                   metavar="LOOP", help="CLF-QP block loops to time, each on the same batch in this "
-                   "process (cassie.qp_loop: while, fixed, compact)")
-    b.add_argument("--qp-linsys", nargs="+", default=["cholesky"], choices=("cholesky", "inverse"),
-                   metavar="SOLVE", help="CLF-QP linear solves to time, each on the same batch in this "
-                   "process (cassie.qp_linsys: cholesky, inverse)")
-    b.add_argument("--qp-kernel", nargs="+", default=["xla"], choices=("xla", "fused"),
-                   metavar="KERNEL", help="CLF-QP iteration kernels to time, each on the same batch "
-                   "in this process (cassie.qp_kernel: xla, fused; fused runs with the inverse "
-                   "linear solve only, so it needs --qp-linsys inverse)")
-    b.add_argument("--qp-rho-start", nargs="+", default=["previous"],
-                   choices=("default", "previous"), metavar="RHO",
-                   help="CLF-QP starting step sizes to time, each on the same batch in this "
-                   "process (cassie.qp_rho_start: default, previous)")
-    b.add_argument("--condense", nargs="+", default=["eigen"], choices=("eigen", "deflated"),
-                   metavar="SOLVE", help="condensation solves to time, each on the same batch in "
-                   "this process (cassie.condense: eigen, deflated)")
-    b.add_argument("--terms", nargs="+", default=["mjx"], choices=("mjx", "dense"),
-                   metavar="TERMS", help="whole-body terms to time, each on the same batch in "
-                   "this process (cassie.terms: mjx, dense)")
-    b.add_argument("--physics", nargs="+", default=["jax"], choices=("jax", "warp"),
-                   metavar="IMPL", help="physics implementations to time, each on the same batch in "
-                   "this process (cassie.physics: jax, warp; warp needs warp-lang)")
+    for field, metavar, what, note in _BENCH_VARIANTS:
+        choices = _cassie_choices(field)
+        b.add_argument("--" + field.replace("_", "-"), nargs="+", metavar=metavar,
+                       default=[_cassie_default(field)], choices=choices,
+                       help=f"{what} to time, each on the same batch in this process "
+                       f"(cassie.{field}: {', '.join(choices)}{note})")
     b.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
 
 

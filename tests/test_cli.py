@@ -750,3 +750,22 @@ def test_run_ticks_refuses_bad_choices_before_running(tmp_path, tiny_sweep, caps
         code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--quiet", *args)
         assert "--ticks" in _one_line_error(code, err) and msg in err, err
         assert not out.exists()
+
+
+def test_bench_variant_flags_take_the_config_choices(capsys):
+    # the bench's variant flags offer exactly the sweep file's values (one list, in config), and
+    # the condensation's and the terms' lists there are the modules' own
+    from hlip_jax import cli, config
+    from hlip_jax.plants.cassie import dynamics, model
+    spec = lambda f: tuple(config.field_spec(config.CassieConfig, f)["choices"])
+    assert spec("condense") == dynamics.SOLVES and spec("terms") == model.TERMS
+    ap = cli.build_parser()
+    bench = next(a for a in ap._subparsers._group_actions[0].choices["bench"]._actions
+                 if a.dest == "terms")
+    assert tuple(bench.choices) == model.TERMS and bench.default == ["mjx"]
+    for field, *_ in cli._BENCH_VARIANTS:
+        with pytest.raises(SystemExit) as exc:
+            main(["bench", "--" + field.replace("_", "-"), "nonsense"])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert all(repr(c) in err for c in spec(field)), (field, err)
