@@ -14,7 +14,11 @@ Stages (the CLF-QP tick of :mod:`hlip_jax.plants.cassie.control`, the walking ti
     physics    control.physics: the two MJX steps of a tick (MJX-JAX)
     physics (warp)  the same two steps on MJX's Warp implementation (where warp-lang is installed)
     tick       all of the above in one program (terms → condense → build → solve → physics);
-               "tick (inverse)" with the inverse linear solve
+               "tick (inverse)" with the inverse linear solve, "tick (inverse, warp)" with it
+               and the Warp physics
+
+``--terms`` and ``--condense`` choose how every stage computes the whole-body terms
+(``cassie.terms``: mjx, dense) and the constraint forces (``cassie.condense``: eigen, deflated).
 
 Each stage is one jitted, vmapped program over ``B`` robots at the same state (the stand
 keyframe after 0.2 s of standing, all four contact sites closed), timed as the best of
@@ -51,8 +55,9 @@ def _state(c, B: int):
     return tile(d), tile(warm), des
 
 
-def _stages(c, des, robots: int):
-    """name → per-robot function of (d, warm) returning arrays (the stage's output)."""
+def _stages(c, des, robots: int, terms: str = "mjx", solve: str = "eigen"):
+    """name → per-robot function of (d, warm) returning arrays (the stage's output), with the
+    whole-body terms ``terms`` and the condensation's solve ``solve``."""
     dt = jnp.float32 if not jax.config.jax_enable_x64 else jnp.float64
     contact = jnp.ones(4, dt)
     lo, hi = (jnp.asarray(c.ctrl_range[:, i], dt) for i in (0, 1))
@@ -60,10 +65,10 @@ def _stages(c, des, robots: int):
     springs = dynamics.spring_dofs(c)
 
     def parts(d):
-        terms = model.robot_terms(c, d)
-        meas = outputs.measure(terms, d.qvel, c.index.root_dof)
-        cond = dynamics.condense(terms, c.actuation, contact, springs)
-        return terms, meas, cond
+        rt = model.robot_terms(c, d, terms=terms)
+        meas = outputs.measure(rt, d.qvel, c.index.root_dof)
+        cond = dynamics.condense(rt, c.actuation, contact, springs, solve=solve)
+        return rt, meas, cond
 
     def prob(d):
         _, meas, cond = parts(d)
@@ -75,14 +80,16 @@ def _stages(c, des, robots: int):
         return qp.solve(p.P, p.q, p.A, p.l, p.u, settings=st._replace(linsys=linsys),
                         warm_start=w[:2]).x
 
-    def tick(d, warm, linsys="cholesky"):
+    def tick(d, warm, linsys="cholesky", backend="jax"):
         res, _, _ = control.control(c, d, des, contact, lo, hi, gains, warm,
-                                    st._replace(linsys=linsys))
-        return control.physics(c, d, res.tau, jnp.zeros(3, dt)).qpos
+                                    st._replace(linsys=linsys), terms, solve)
+        mx = warp_physics.base_model(c.mj_model) if backend == "warp" else None
+        return control.physics(c, d, res.tau, jnp.zeros(3, dt), mx=mx, backend=backend,
+                               robots=robots).qpos
 
     zero = jnp.zeros(c.index.nu, dt)
     return {
-        "terms": lambda d, w: model.robot_terms(c, d).M,
+        "terms": lambda d, w: model.robot_terms(c, d, terms=terms).M,
         "condense": lambda d, w: parts(d)[2].qdd_tau,
         "qp_build": lambda d, w: prob(d).P,
         "admm (warm)": lambda d, w: admm(d, w, False),
@@ -95,6 +102,7 @@ def _stages(c, des, robots: int):
             robots=robots).qpos,
         "tick": tick,
         "tick (inverse)": lambda d, w: tick(d, w, "inverse"),
+        "tick (inverse, warp)": lambda d, w: tick(d, w, "inverse", "warp"),
     }
 
 
@@ -131,27 +139,36 @@ def main(argv=None) -> None:
     ap.add_argument("--ticks", type=int, default=50, help="calls per timed run")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--stages", nargs="+", default=None, help="only these stages")
+    ap.add_argument("--terms", default="mjx", choices=model.TERMS,
+                    help="whole-body terms of every stage (cassie.terms)")
+    ap.add_argument("--condense", default="eigen", choices=dynamics.SOLVES,
+                    help="the condensation's solve in every stage (cassie.condense)")
     args = ap.parse_args(argv)
     c = control.load()
     dev = jax.devices()[0]
     print(f"backend {jax.default_backend()}, device {dev.device_kind}, jax {jax.__version__}, "
-          f"{'float64' if jax.config.jax_enable_x64 else 'float32'}")
+          f"{'float64' if jax.config.jax_enable_x64 else 'float32'}, terms {args.terms}, "
+          f"condensation {args.condense}")
     print("| batch | stage | compile + first [s] | per call [ms] | share of the tick |")
     print("|---:|---|---:|---:|---:|")
     for B in args.batch:
         d, warm, des = _state(c, B)
-        stages = _stages(c, des, B)
+        stages = _stages(c, des, B, args.terms, args.condense)
         names = args.stages or list(stages)
-        if "physics (warp)" in names and not warp_physics.available():
-            print("skipping 'physics (warp)': warp-lang is not installed", file=sys.stderr)
-            names = [n for n in names if n != "physics (warp)"]
+        if not warp_physics.available() and any("warp" in n for n in names):
+            print("skipping the Warp stages: warp-lang is not installed", file=sys.stderr)
+            names = [n for n in names if "warp" not in n]
         unknown = sorted(set(names) - set(stages))
         if unknown:
             ap.error(f"--stages: unknown {unknown}; allowed: {list(stages)}")
-        rows = {n: _time(stages[n], d, warm, args.ticks, args.repeats) for n in names}
-        whole = rows.get("tick", rows.get("tick (inverse)", (0.0, float("nan"))))[1]
-        for n, (first, per) in rows.items():
-            print(f"| {B} | {n} | {first:.1f} | {per * 1e3:.3f} | {per / whole:.2f} |", flush=True)
+        # the first whole tick named is timed first: the other rows' share is of it, and each
+        # row prints as soon as it is timed
+        whole = None
+        for n in sorted(names, key=lambda n: not n.startswith("tick")):
+            first, per = _time(stages[n], d, warm, args.ticks, args.repeats)
+            whole = per if whole is None and n.startswith("tick") else whole
+            share = "–" if whole is None else f"{per / whole:.2f}"
+            print(f"| {B} | {n} | {first:.1f} | {per * 1e3:.3f} | {share} |", flush=True)
 
 
 if __name__ == "__main__":

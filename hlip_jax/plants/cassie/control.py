@@ -50,12 +50,15 @@ def canonical(cassie: model.Cassie, d: mjx.Data, mx=None) -> mjx.Data:
 
 
 def control(cassie: model.Cassie, d: mjx.Data, des: outputs.Desired, contact, tau_min, tau_max,
-            gains: clfqp.Gains, warm, settings=clfqp.DEFAULT_SETTINGS):
-    """CLF-QP torques at the state of ``d`` (its qpos, qvel).
+            gains: clfqp.Gains, warm, settings=clfqp.DEFAULT_SETTINGS, terms: str = "mjx",
+            solve: str = "eigen"):
+    """CLF-QP torques at the state of ``d`` (its qpos, qvel); ``terms`` (static) as in
+    :func:`model.robot_terms`, ``solve`` (static) the condensation's (:func:`dynamics.condense`).
     Returns (clfqp.Result, outputs.Measured, model.RobotTerms)."""
-    terms = model.robot_terms(cassie, d)
+    terms = model.robot_terms(cassie, d, terms=terms)
     meas = outputs.measure(terms, d.qvel, cassie.index.root_dof)
-    cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie))
+    cond = dynamics.condense(terms, cassie.actuation, contact, dynamics.spring_dofs(cassie),
+                             solve=solve)
     res = clfqp.solve(meas, des, cond, contact, tau_min, tau_max, gains, warm, settings)
     return res, meas, terms
 
