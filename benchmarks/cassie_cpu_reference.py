@@ -60,7 +60,7 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs
+from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs, tree_terms
 
 SUBSTEPS = control.SUBSTEPS
 CONTROL_DT = control.CONTROL_DT       # [s]
@@ -128,7 +128,7 @@ def static(m: mujoco.MjModel) -> Static:
     b1, b2 = m.eq_obj1id[loops].copy(), m.eq_obj2id[loops].copy()
     com_bodies = np.arange(1, m.nbody)
     pt_bodies = np.concatenate([m.site_bodyid[list(sites)], b1, b2, com_bodies]).astype(int)
-    mask = model._ancestor_mask(m)
+    mask = tree_terms.tree_of(m).moves
     jt = m.jnt_type[m.dof_jntid]
     first = m.jnt_dofadr[m.dof_jntid]
     is_quat = (jt == mujoco.mjtJoint.mjJNT_BALL) | (

@@ -172,17 +172,6 @@ def actuation_matrix(m: mujoco.MjModel) -> np.ndarray:
     return B
 
 
-def _ancestor_mask(m: mujoco.MjModel) -> np.ndarray:
-    """mask[b, i] = 1 if dof i moves body b (dof's body is b or one of b's ancestors)."""
-    mask = np.zeros((m.nbody, m.nv))
-    for b in range(m.nbody):
-        a = b
-        while a > 0:
-            mask[b, m.dof_bodyid == a] = 1.0
-            a = m.body_parentid[a]
-    return mask
-
-
 @dataclasses.dataclass(frozen=True, eq=False)
 class Cassie:
     """The loaded model: C model, MJX model, indices and static numpy constants.
@@ -198,7 +187,7 @@ class Cassie:
     joint_torque_limit: np.ndarray  # (nu,) |gear * ctrl| limit [N m] at the joint
     stand_qpos: np.ndarray       # (nq,) "stand" keyframe
     total_mass: float            # [kg]
-    body_mask: np.ndarray        # (nbody, nv) ancestor mask
+    body_mask: np.ndarray        # (nbody, nv) ancestor mask: 1 where the dof moves the body
     body_mass: np.ndarray        # (nbody,) [kg]
     loop_body1: np.ndarray       # (4,) rod body of each loop
     loop_body2: np.ndarray       # (4,) partner body (heel spring / foot)
@@ -218,6 +207,7 @@ def load(path: Optional[str | pathlib.Path] = None, impl: str = "jax") -> Cassie
     mx = mjx.put_model(m, impl=impl)
     gear = m.actuator_gear[:, 0].copy()
     loops = np.array(idx.loops)
+    tree = tree_terms.tree_of(m)
     return Cassie(
         mj_model=m, mjx_model=mx, index=idx,
         actuation=actuation_matrix(m),
@@ -225,10 +215,10 @@ def load(path: Optional[str | pathlib.Path] = None, impl: str = "jax") -> Cassie
         joint_torque_limit=gear * np.abs(m.actuator_ctrlrange).max(axis=1),
         stand_qpos=m.key_qpos[idx.stand_key].copy(),
         total_mass=float(m.body_subtreemass[idx.pelvis_body]),
-        body_mask=_ancestor_mask(m), body_mass=m.body_mass.copy(),
+        body_mask=tree.moves, body_mass=m.body_mass.copy(),
         loop_body1=m.eq_obj1id[loops].copy(), loop_body2=m.eq_obj2id[loops].copy(),
         loop_anchor1=m.eq_data[loops, 0:3].copy(), loop_anchor2=m.eq_data[loops, 3:6].copy(),
-        site_body=m.site_bodyid.copy(), tree=tree_terms.tree_of(m),
+        site_body=m.site_bodyid.copy(), tree=tree,
     )
 
 
