@@ -20,7 +20,8 @@ from hlip_jax.plants.cassie import model, tree_terms
 
 REL = 1e-10
 
-#: every joint type, two joints in one body, a body without joints, a branch
+#: every joint type, two joints in one body (a hinge and a slide; a hinge and a ball), a body
+#: without joints, a branch
 SMALL_TREE = """
 <mujoco>
   <option gravity="0.3 -0.2 -9.81"/>
@@ -45,6 +46,11 @@ SMALL_TREE = """
         <body name="c" pos="0 0.1 0">
           <joint name="h2" type="hinge" axis="1 1 0" ref="0.4"/>
           <geom type="ellipsoid" size="0.05 0.03 0.08" mass="0.5" pos="0 0.02 0.01"/>
+          <body name="d" pos="0.05 0 -0.1">
+            <joint name="h3" type="hinge" axis="0 0 1" pos="0 0 0.02" damping="0.3"/>
+            <joint name="ball2" type="ball" pos="0.01 0 0"/>
+            <geom type="box" size="0.02 0.03 0.04" mass="0.2" pos="0 0 -0.03"/>
+          </body>
         </body>
       </body>
     </body>
@@ -162,6 +168,10 @@ def test_models_the_dense_terms_do_not_cover_are_refused():
                              'stiffness="3"')
     with pytest.raises(ValueError, match="jnt_stiffness"):
         tree_terms.tree_of(mujoco.MjModel.from_xml_string(xml))
+    with pytest.raises(ValueError, match="opt.disableflags"):
+        tree_terms.tree_of(mujoco.MjModel.from_xml_string(SMALL_TREE.replace(
+            '<option gravity="0.3 -0.2 -9.81"/>',
+            '<option gravity="0.3 -0.2 -9.81"><flag gravity="disable"/></option>')))
     with pytest.raises(ValueError, match="terms: 'fast'; allowed"):
         c = model.load()
         model.smooth(c, mjx.put_data(c.mj_model, mujoco.MjData(c.mj_model)), terms="fast")

@@ -53,8 +53,9 @@ class Tree:
     the column body is in the row body's subtree (itself included); chain: (nv, nv), 1 where
     the column dof is on the row dof's chain to the root (itself included); before: (nv, nv),
     1 where the column dof's motion enters the velocity that ``cdof_dot`` of the row dof
-    crosses; root: root body of each body (nbody,); site_body: (nsite,); hinge_dofs,
-    hinge_qpos: dof and qpos addresses of the hinge and slide joints (springs)."""
+    crosses; root: root body of each body (nbody,); site_body: (nsite,); hinge_jnts,
+    hinge_qpos: the hinge and slide joints (springs) and their qpos addresses; hinge_onehot:
+    (nv, number of them), 1 at each one's dof."""
 
     parent: np.ndarray
     body_joints: tuple
@@ -84,17 +85,18 @@ def _chain(m: mujoco.MjModel) -> np.ndarray:
 
 
 def _before(m: mujoco.MjModel, chain: np.ndarray) -> np.ndarray:
-    """Row i: the dofs of the bodies strictly above dof i's body, plus, for a free joint's
-    rotational dofs, its translational ones (``mj_comVel``'s order of accumulation)."""
+    """Row i: the dofs of the bodies strictly above dof i's body and of the joints before dof
+    i's joint in the same body, plus, for a free joint's rotational dofs, its translational
+    ones (``mj_comVel``'s order of accumulation: a joint's dofs all see the velocity before
+    that joint, except the free joint's rotations, which see its translation)."""
     before = chain * (m.dof_bodyid[None, :] != m.dof_bodyid[:, None])
+    width = {FREE: 6, BALL: 3}
     for j in range(m.njnt):
+        a = m.jnt_dofadr[j]
+        rows = slice(a, a + width.get(int(m.jnt_type[j]), 1))
+        before[rows, (m.dof_bodyid == m.dof_bodyid[a]) & (np.arange(m.nv) < a)] = 1.0
         if m.jnt_type[j] == FREE:
-            a = m.jnt_dofadr[j]
             before[a + 3:a + 6, a:a + 3] = 1.0
-        elif m.jnt_type[j] in (HINGE, SLIDE):       # earlier joints of the same body
-            a = m.jnt_dofadr[j]
-            same = (m.dof_bodyid == m.dof_bodyid[a]) & (np.arange(m.nv) < a)
-            before[a, same] = 1.0
     return before
 
 
@@ -107,6 +109,10 @@ def tree_of(m: mujoco.MjModel) -> Tree:
                          f"{stiff[stiff != 0].tolist()}")
     if np.any(m.body_gravcomp != 0) or m.opt.density != 0 or m.opt.viscosity != 0:
         raise ValueError("body_gravcomp, opt.density, opt.viscosity: must be 0 for the dense terms")
+    off = mujoco.mjtDisableBit
+    if m.opt.disableflags & (off.mjDSBL_GRAVITY | off.mjDSBL_SPRING | off.mjDSBL_DAMPER):
+        raise ValueError("opt.disableflags: gravity, springs and dampers must stay enabled for "
+                         "the dense terms")
     moves = np.zeros((m.nbody, m.nv))
     subtree = np.zeros((m.nbody, m.nbody))
     for b in range(m.nbody):
