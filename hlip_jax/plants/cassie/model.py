@@ -356,12 +356,6 @@ def smooth(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None,
 # ----------------------------------------------------------------------------- dynamics
 
 
-def mass_matrix(cassie: Cassie, d: mjx.Data, mx: Optional[mjx.Model] = None) -> jax.Array:
-    """Dense joint-space inertia M(q) (nv, nv), armature included (needs :func:`smooth`)."""
-    mx = cassie.mjx_model if mx is None else mx
-    return mjx.full_m(mx, d)
-
-
 def bias_force(d: mjx.Data) -> jax.Array:
     """h(q, q̇) (nv,): Coriolis, centrifugal and gravity generalized force (needs :func:`smooth`)."""
     return d.qfrc_bias

@@ -351,8 +351,9 @@ def settings(cfg, robots: int = 1) -> tick.Settings:
     """The tick's static settings of a scenario simulated in a batch of ``robots``: the
     CLF-QP's ADMM settings (``cassie.qp_max_iter``, ``qp_eps``, ``qp_loop``, ``qp_linsys``,
     ``qp_kernel``), the condensation's solve (``cassie.condense``), how the whole-body terms
-    are computed (``cassie.terms``), the physics' implementation (``cassie.physics``; "warp" raises ``ValueError`` where warp-lang is
-    missing) and the batch size (Warp's contact buffer holds the whole batch's contacts)."""
+    are computed (``cassie.terms``), the physics' implementation (``cassie.physics``; "warp"
+    raises ``ValueError`` where warp-lang is missing) and the batch size (Warp's contact
+    buffer holds the whole batch's contacts)."""
     if cfg.cassie.physics == "warp":
         from hlip_jax.plants.cassie import warp_physics
         warp_physics.require()
