@@ -317,15 +317,29 @@ def call(fn: Callable, static, *args):
 
 
 def out_shapes(fn: Callable, static, *args):
-    """``fn(*args, static=static)``'s output as :class:`jax.ShapeDtypeStruct` leaves, from
-    its stored or newly traced program, without compiling it; None where the cache does
-    not serve the call.  ``args`` may hold ShapeDtypeStructs."""
+    """``fn(*args, static=static)``'s output as :class:`jax.ShapeDtypeStruct` leaves, without
+    compiling it: from its stored or newly traced program, or, where the cache does not serve
+    the call (module doc), from ``fn``'s own jit lowering (:func:`_jit_lowered`).  None under
+    ``jax.disable_jit``.  ``args`` may hold ShapeDtypeStructs."""
     found = _lookup(fn, static, args)
     if found is None:
-        return None
+        lowered = _jit_lowered(fn, static, args)
+        return None if lowered is None else jax.tree.map(
+            lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), lowered.out_info)
     prog = found[1]
     return jax.tree.unflatten(prog.out_tree, [jax.ShapeDtypeStruct(a.shape, a.dtype)
                                               for a in prog.exported.out_avals])
+
+
+def _jit_lowered(fn: Callable, static, args):
+    """``fn(*args, static=static)`` traced and lowered by ``fn``'s own jit (None under
+    ``jax.disable_jit``).  Jit keeps the lowering in memory for the same argument types, and
+    the executable its ``compile()`` makes, so the later call ``fn(*args, static=static)``
+    runs that executable without tracing or compiling again: the way calls the cache does not
+    serve (MJX's Warp physics) are compiled ahead."""
+    if jax.config.jax_disable_jit:
+        return None
+    return fn.lower(*args, static=static)
 
 
 def _compile(prog: Program, args):
@@ -340,16 +354,23 @@ def compile_together(calls) -> None:
     """Trace or load the programs of several calls ``(fn, static, args)`` (one after the
     other: tracing holds Python's lock), then compile them concurrently in threads (XLA
     compiles without it), so a loop's start and step programs cost the longer compile, not
-    the sum.  Calls the cache does not serve are left to their first use."""
-    todo = {}
+    the sum.  Calls the cache does not serve are lowered by their own jit and compiled the
+    same way (:func:`_jit_lowered`); their first use then runs the executable made here."""
+    todo, lowered = {}, []
     for fn, static, args in calls:
         found = _lookup(fn, static, args)
-        if found is not None and found[1].compiled is None:
+        if found is None:
+            low = _jit_lowered(fn, static, args)
+            lowered += [] if low is None else [low]
+        elif found[1].compiled is None:
             todo[found[0]] = (found[1], args)
-    if not todo:
+    if not todo and not lowered:
         return
     from concurrent.futures import ThreadPoolExecutor
-    with ThreadPoolExecutor(len(todo)) as pool:
+    with ThreadPoolExecutor(len(todo) + len(lowered)) as pool:
+        jitted = [pool.submit(low.compile) for low in lowered]
         done = dict(zip(todo, pool.map(lambda pa: _compile(*pa), todo.values())))
+        for f in jitted:
+            f.result()
     for k, compiled in done.items():
         _loaded[k] = todo[k][0]._replace(compiled=compiled)

@@ -136,6 +136,34 @@ def test_a_loop_that_cannot_be_exported_runs_plain(cache, monkeypatch):
     assert len(calls) == 1                                                 # does not try again
 
 
+def test_a_loop_that_cannot_be_exported_compiles_ahead_in_threads(cache, monkeypatch):
+    """Without an exported program (MJX's Warp physics) the start and segment programs are
+    lowered by their own jit and compiled together in worker threads, each once: the loop's
+    calls then run those executables, with the plain run's numbers."""
+    import threading
+
+    import jax
+
+    def refuse(*a, **kw):
+        raise ValueError("no stable ABI")
+    monkeypatch.setattr(trace_cache.jax_export, "export", refuse)
+    compiles = []
+
+    def listen(event, duration, **kw):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiles.append((str(kw.get("fun_name")), threading.current_thread().name))
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        out = _run(True, max_iter=31)        # a static setting no other test compiles
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    loops = [("start" if "_start_batch" in f else "segment", t) for f, t in compiles
+             if "_start_batch" in f or "_segment_batch" in f]
+    assert sorted(f for f, _ in loops) == ["segment", "start"]
+    assert all(t != threading.main_thread().name for _, t in loops)
+    _assert_equal(out, _plain(True, max_iter=31))
+
+
 def test_key_covers_code_settings_and_flags(monkeypatch):
     import jax
     leaves, tree = jax.tree.flatten((np.zeros(3),))

@@ -178,6 +178,28 @@ def test_terms_is_a_static_setting():
     assert plant.settings(cfg).terms == "dense"
 
 
+@pytest.mark.parametrize("noisy", [False, True], ids=["ideal", "sensor-noise"])
+def test_a_walking_step_computes_every_term_as_set(monkeypatch, noisy):
+    # the ticks, the step's end (the true state the S2S log records) and, with sensor noise,
+    # the estimated state all compute the whole-body terms the way cassie.terms says
+    from hlip_jax import bench, config, rollout
+    base = bench.configs(1, 1.0)[0]
+    real = config.RealismConfig(joint_noise=0.5) if noisy else base.realism
+    cfg = dataclasses.replace(base, realism=real,
+                              cassie=dataclasses.replace(base.cassie, terms="dense"))
+    batch, static = rollout.build([cfg])
+    carry = jax.eval_shape(lambda b: rollout._start_batch(b, static), batch)[0]
+    seen, inner = [], model.robot_terms
+
+    def recording(cassie, d, mx=None, terms="mjx"):
+        seen.append(terms)
+        return inner(cassie, d, mx, terms)
+    monkeypatch.setattr(model, "robot_terms", recording)
+    jax.eval_shape(lambda b, c: rollout._segment_batch(b, c, jax.numpy.arange(1), static),
+                   batch, carry)
+    assert len(seen) >= (3 if noisy else 2) and set(seen) == {"dense"}, seen
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_closed_loop_with_dense_terms_walks_as_with_mjx_terms(float64):

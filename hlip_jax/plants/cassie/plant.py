@@ -283,14 +283,17 @@ def _prepare(params: Params, state: State, cmd: StepCommand, physics: str = "jax
     return cmd, key, du_err, _context(params, state, cmd, f_noise, du_err, physics)
 
 
-def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState, key, du_err):
+def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState, key, du_err,
+            terms_impl: str = "mjx"):
     """(plant state at SSP⁻_{k+1}, StepResult) from the last tick state of the step (the
-    true state, on the physics' own model: a pelvis COM error moves the COM it reports)."""
-    terms = model.robot_terms(cassie(), s.d, ctx.mx_plant)
+    true state, on the physics' own model: a pelvis COM error moves the COM it reports).
+    ``terms_impl``: how the whole-body terms are computed (:class:`tick.Settings`' ``terms``),
+    as the controller's ticks compute them."""
+    terms = model.robot_terms(cassie(), s.d, ctx.mx_plant, terms_impl)
     x_r, st_xy = tick.robot_state(terms, ctx.new_st)
     sw_xy = jnp.where(ctx.sw == 0, terms.ankle[0, :2], terms.ankle[1, :2])
     failed = s.fell | ~jnp.all(jnp.isfinite(x_r))
-    x_est = x_r if ctx.real is None else _estimated_state(ctx, s)
+    x_est = x_r if ctx.real is None else _estimated_state(ctx, s, terms_impl)
     new = State(d=s.d, warm=s.warm, time=state.time + s.t_step,
                 yaw=outputs.wrap(cmd.heading), land_xy=st_xy + s.u_last + s.sw_offset + du_err,
                 key=key, real=s.real)
@@ -298,14 +301,14 @@ def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState
                            duration=s.t_step, leg_gap=s.gap)
 
 
-def _estimated_state(ctx: tick.Context, s: tick.TickState):
+def _estimated_state(ctx: tick.Context, s: tick.TickState, terms_impl: str = "mjx"):
     """[c, p, v] per plane (2, 3) at SSP⁻_{k+1} as the non-ideal robot's controller has it:
     the measurement and velocity estimate that the next tick's ``sense`` and ``estimate``
     stages make from this state (the same noise key and filter state), on the controller's
     model.  With exact sensing, no filter and no model error this is the true state."""
     c = cassie()
     dm, _ = realism.sense(c, ctx.real, s.real, s.d)
-    terms = tick.measure(ctx, dm)
+    terms = tick.measure(ctx, dm, terms_impl)
     est = realism.estimate_velocity(ctx.real, s.real, terms.com_vel, control.CONTROL_DT)
     x, _ = tick.robot_state(terms, ctx.new_st)
     return x.at[:, 2].set(est.v_est[:2])
@@ -318,7 +321,7 @@ def step_with_log(params: Params, state: State, cmd: StepCommand,
     cmd, key, du_err, ctx = _prepare(params, state, cmd, settings.physics)
     s, log = jax.lax.scan(lambda s, _: tick.tick(ctx, s, settings), _first_tick(ctx, state),
                           None, length=params.ticks.shape[0])
-    return (*_finish(state, cmd, ctx, s, key, du_err), log)
+    return (*_finish(state, cmd, ctx, s, key, du_err, settings.terms), log)
 
 
 def step(params: Params, state: State, cmd: StepCommand,
@@ -344,7 +347,7 @@ def step(params: Params, state: State, cmd: StepCommand,
         return (i < budget) & tick.running(s)
 
     _, s = jax.lax.while_loop(more, body, (jnp.zeros((), jnp.int32), _first_tick(ctx, state)))
-    return _finish(state, cmd, ctx, s, key, du_err)
+    return _finish(state, cmd, ctx, s, key, du_err, settings.terms)
 
 
 def settings(cfg, robots: int = 1) -> tick.Settings:
