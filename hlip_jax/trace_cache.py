@@ -86,6 +86,8 @@ class Program(NamedTuple):
 
 
 _loaded: dict[str, Program] = {}      # key -> program, for the rest of the process
+_ahead: dict[tuple, Callable] = {}    # call signature -> executable compiled ahead by jit
+                                      # (calls the cache does not serve: compile_together)
 
 
 def enable(path: Path) -> None:
@@ -99,6 +101,7 @@ def disable() -> None:
     global _dir
     _dir = None
     _loaded.clear()
+    _ahead.clear()
 
 
 def directory() -> Optional[Path]:
@@ -311,9 +314,28 @@ def call(fn: Callable, static, *args):
     hashable static ``static`` — through the cache where it serves the call (module doc)."""
     found = _lookup(fn, static, args)
     if found is None:
-        return fn(*args, static=static)
+        return _call_ahead(fn, static, args)
     prog = found[1]
     return jax.tree.unflatten(prog.out_tree, prog.run(jax.tree.leaves(args)))
+
+
+def _signature(fn: Callable, static, args) -> tuple:
+    """The function, its static settings and the arguments' structure, shapes and dtypes."""
+    leaves, treedef = jax.tree.flatten(args)
+    return (fn, static, treedef, tuple((tuple(a.shape), str(a.dtype)) for a in leaves))
+
+
+def _call_ahead(fn: Callable, static, args):
+    """``fn(*args, static=static)`` by the executable :func:`compile_together` made for these
+    argument types, where it accepts the arguments as placed (it raises TypeError where their
+    types or placement differ: a committed array where the lowering had none), else by jit."""
+    compiled = _ahead.get(_signature(fn, static, args))
+    if compiled is not None:
+        try:
+            return compiled(*args)
+        except TypeError:
+            pass
+    return fn(*args, static=static)
 
 
 def out_shapes(fn: Callable, static, *args):
@@ -333,10 +355,8 @@ def out_shapes(fn: Callable, static, *args):
 
 def _jit_lowered(fn: Callable, static, args):
     """``fn(*args, static=static)`` traced and lowered by ``fn``'s own jit (None under
-    ``jax.disable_jit``).  Jit keeps the lowering in memory for the same argument types, and
-    the executable its ``compile()`` makes, so the later call ``fn(*args, static=static)``
-    runs that executable without tracing or compiling again: the way calls the cache does not
-    serve (MJX's Warp physics) are compiled ahead."""
+    ``jax.disable_jit``): how calls the cache does not serve (MJX's Warp physics) are
+    compiled ahead.  :func:`compile_together` keeps the executable, and :func:`call` runs it."""
     if jax.config.jax_disable_jit:
         return None
     return fn.lower(*args, static=static)
@@ -356,21 +376,21 @@ def compile_together(calls) -> None:
     compiles without it), so a loop's start and step programs cost the longer compile, not
     the sum.  Calls the cache does not serve are lowered by their own jit and compiled the
     same way (:func:`_jit_lowered`); their first use then runs the executable made here."""
-    todo, lowered = {}, []
+    todo, lowered = {}, {}
     for fn, static, args in calls:
         found = _lookup(fn, static, args)
         if found is None:
-            low = _jit_lowered(fn, static, args)
-            lowered += [] if low is None else [low]
+            sig = _signature(fn, static, args)
+            low = None if sig in _ahead else _jit_lowered(fn, static, args)
+            lowered.update({} if low is None else {sig: low})
         elif found[1].compiled is None:
             todo[found[0]] = (found[1], args)
     if not todo and not lowered:
         return
     from concurrent.futures import ThreadPoolExecutor
     with ThreadPoolExecutor(len(todo) + len(lowered)) as pool:
-        jitted = [pool.submit(low.compile) for low in lowered]
+        jitted = {sig: pool.submit(low.compile) for sig, low in lowered.items()}
         done = dict(zip(todo, pool.map(lambda pa: _compile(*pa), todo.values())))
-        for f in jitted:
-            f.result()
+        _ahead.update({sig: f.result() for sig, f in jitted.items()})
     for k, compiled in done.items():
         _loaded[k] = todo[k][0]._replace(compiled=compiled)
