@@ -29,22 +29,25 @@ def _frames(eqn, depth: int) -> tuple[str, ...]:
                  for f in list(frames)[:depth])
 
 
-def _walk(jaxpr, counts: collections.Counter, depth: int) -> None:
+def _walk(jaxpr, counts: collections.Counter, depth: int, prefix: str) -> None:
     for eqn in jaxpr.eqns:
-        if eqn.primitive.name.startswith("scatter"):
+        if eqn.primitive.name.startswith(prefix):
             counts[(eqn.primitive.name, _frames(eqn, depth))] += 1
         for p in eqn.params.values():
             for sub in p if isinstance(p, (list, tuple)) else (p,):
                 if isinstance(sub, core.ClosedJaxpr):
-                    _walk(sub.jaxpr, counts, depth)
+                    _walk(sub.jaxpr, counts, depth, prefix)
                 elif isinstance(sub, core.Jaxpr):
-                    _walk(sub, counts, depth)
+                    _walk(sub, counts, depth, prefix)
 
 
-def census(fn, *args, depth: int = 2) -> collections.Counter:
-    """(primitive name, source frames) → number of scatter equations in ``fn``'s jaxpr."""
+def census(fn, *args, depth: int = 2, prefix: str = "scatter") -> collections.Counter:
+    """(primitive name, source frames) → number of equations in ``fn``'s jaxpr whose
+    primitive's name starts with ``prefix`` (the scatters by default; "" counts every
+    equation).  Frames outside JAX only: an equation JAX's own functions issue (inside
+    ``jnp``'s jitted helpers) has none."""
     counts = collections.Counter()
-    _walk(jax.make_jaxpr(fn)(*args).jaxpr, counts, depth)
+    _walk(jax.make_jaxpr(fn)(*args).jaxpr, counts, depth, prefix)
     return counts
 
 

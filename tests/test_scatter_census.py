@@ -1,4 +1,5 @@
-"""benchmarks/scatter_census.py counts a function's scatter equations by primitive and line."""
+"""benchmarks/scatter_census.py counts a function's equations (its scatters by default) by
+primitive and line; benchmarks/eqn_census.py groups them by source file."""
 
 import inspect
 import sys
@@ -26,3 +27,19 @@ def test_census_counts_each_scatter_once_with_its_line():
     assert by_line == {("scatter-add", str(start + 1)): 1, ("scatter", str(start + 2)): 1,
                        ("scatter-add", str(start + 3)): 1}
     assert sum(counts.values()) == 3
+
+
+def _g(x):
+    y = jnp.sin(x) * 2.0                                  # sin, mul
+    return jax.lax.fori_loop(0, 3, lambda k, a: a + 1.0, y)   # the loop; add in its body
+
+
+def test_an_empty_prefix_counts_every_equation_and_eqn_census_groups_them_by_file():
+    import eqn_census
+    counts = scatter_census.census(_g, jnp.ones(3), depth=1, prefix="")
+    # a fixed trip count makes the loop a scan; its counter's increment is JAX's own (no
+    # frame outside JAX), sin, mul, the scan and the body's add are this file's
+    assert sorted(p for p, _ in counts.elements()) == ["add", "add", "mul", "scan", "sin"]
+    files = eqn_census.by_file(counts)
+    mine = [n for f, n in files.items() if f.endswith(Path(__file__).name)]  # path from cwd
+    assert files["(jax)"] == 1 and mine == [4] and len(files) == 2

@@ -1,0 +1,78 @@
+"""How large the closed loop's compiled programs are, and which source files make them so.
+
+XLA's compile time grows with the program it is given.  This counts the equations of the
+start or segment program (:func:`hlip_jax.rollout._start_batch`, ``_segment_batch``; the
+bodies of loops and conditionals counted once each) of a sweep file's first ``--batch``
+scenarios, grouped by the source file of their innermost frame outside JAX ("(jax)": issued
+by JAX's own jitted helpers, such as ``jnp`` indexing)::
+
+    python benchmarks/eqn_census.py --sweep sweeps/paper.toml [--program segment]
+        [--no-physics] [--top 25]
+
+``--no-physics`` replaces the physics step by a function that only sets the motor torques,
+leaving what the controller, the step's end and the MPC add: with Warp physics
+(``cassie.physics = "warp"``) the physics is one foreign call XLA does not compile, so this
+is the part of the program XLA compiles (Warp itself needs a GPU).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import sys
+
+
+def _no_physics() -> None:
+    from hlip_jax.plants.cassie import control
+
+    def physics(cassie, d, ctrl, force, mx=None, backend="jax", robots=1):
+        return d.replace(ctrl=ctrl)
+    control.physics = physics
+
+
+def by_file(counts: collections.Counter) -> collections.Counter:
+    """Equations per source file from a :func:`scatter_census.census` of depth 1."""
+    files = collections.Counter()
+    for (_, where), n in counts.items():
+        files[where[0].rsplit(":", 1)[0] if where else "(jax)"] += n
+    return files
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sweep", default="sweeps/paper.toml")
+    ap.add_argument("--batch", type=int, default=6)
+    ap.add_argument("--program", choices=["start", "segment"], default="segment")
+    ap.add_argument("--no-physics", action="store_true")
+    ap.add_argument("--top", type=int, default=25)
+    args = ap.parse_args(argv)
+    if args.no_physics:
+        _no_physics()
+    sys.path.insert(0, __file__.rsplit("/", 1)[0])
+    import jax
+    import scatter_census
+
+    from hlip_jax import rollout
+    from hlip_jax.sweep import load_sweep
+    cfgs = list(load_sweep(args.sweep).scenarios)[:args.batch]
+    batch, static = rollout.build(cfgs)
+    static = static._replace(progress=True)
+    with jax.default_matmul_precision("highest"):
+        if args.program == "start":
+            counts = scatter_census.census(lambda b: rollout._start_batch(b, static), batch,
+                                           depth=1, prefix="")
+        else:
+            carry = jax.eval_shape(lambda b: rollout._start_batch(b, static), batch)[0]
+            ks = jax.numpy.arange(rollout.segment_length(static.n_steps))
+            counts = scatter_census.census(
+                lambda b, c, k: rollout._segment_batch(b, c, k, static), batch, carry, ks,
+                depth=1, prefix="")
+    print(f"{args.sweep}: {len(cfgs)} scenarios, {args.program} program"
+          f"{', physics left out' if args.no_physics else ''}: "
+          f"{sum(counts.values())} equations", flush=True)
+    for f, n in by_file(counts).most_common(args.top):
+        print(f"  {n:6d}  {f}")
+
+
+if __name__ == "__main__":
+    main()
