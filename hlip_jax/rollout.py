@@ -470,8 +470,9 @@ def _compile_ahead(start, segment, batch: Scenario, static: Static, L: int,
                    split: Optional[jax.sharding.NamedSharding]) -> None:
     """Trace or load the ``start`` and ``segment`` programs (through :mod:`hlip_jax.trace_cache`
     where it serves them, else by their own jit: MJX's Warp physics) and compile both at once
-    (the segment's carry shapes from the start's program).  ``split``: the batch's sharding where per-device programs run
-    it (the carry is split the same way, the step indices given whole), else None."""
+    (the segment's carry shapes from the start's program).  ``split``: the batch's sharding
+    where per-device programs run it (the carry is split the same way, the step indices given
+    whole), else None."""
     shapes = trace_cache.out_shapes(start, static, batch)
     if shapes is None:
         return

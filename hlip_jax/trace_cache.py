@@ -21,7 +21,9 @@ data that cannot be described by its contents alone (functions, objects of unkno
 truncated ``repr`` s, object addresses) keeps the call out of the cache.  Programs that cannot
 be exported (foreign calls without a stable ABI, such as MJX's Warp physics) are marked so
 on disk and take the ordinary jitted call, as do runs over several processes, runs under
-``jax.disable_jit`` and installs without ``flatbuffers`` (jax.export's serializer).  A
+``jax.disable_jit`` and installs without ``flatbuffers`` (jax.export's serializer); such a
+call is still compiled ahead beside the others by :func:`compile_together` (traced again in
+every process, though).  A
 program run by several devices of this process (:func:`hlip_jax.rollout.run`'s per-device
 loops: their name says how many) is stored with its device split and compiled for the
 arguments' placement; programs XLA partitions over several GPUs are not given to the cache
