@@ -452,11 +452,28 @@ def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
     if 0 < n_prefix < G.shape[0]:
         N0 = zonotope_normals(G[:n_prefix])
         N = _unique_directions(np.concatenate([N0, N]))  # keeps N0 first, in order
-    P = np.abs(_small_matmul_t(N, G))  # |N_f · g_k|, (F, m)
-    h = P.sum(axis=1)
-    if 0 < n_prefix < G.shape[0]:
-        h0 = P[:len(N0), :n_prefix].sum(axis=1)
+    n0 = len(N0) if 0 < n_prefix < G.shape[0] else 0
+    h, h0 = _facet_widths(N, G, n0, n_prefix)
     return Zonotope(c, G, N, h, h0)
+
+
+_WIDTH_ROWS = 2048   # facet rows per block of |N Gᵀ| (2048 × 400 generators: 6.5 MB)
+
+
+def _facet_widths(N: np.ndarray, G: np.ndarray, n0: int, n_prefix: int):
+    """(h, h0): h_f = Σ_k |N_f · g_k| for every facet row, and for the first ``n0`` rows the
+    same over the first ``n_prefix`` generators (None where n0 = 0).  |N Gᵀ| is formed
+    ``_WIDTH_ROWS`` rows at a time: a 3-state mRPI set has ~10⁵ facets × ~400 generators, and
+    the whole temporary (hundreds of MB) made the sums memory-bound.  Each row's sum is the
+    same numpy reduction over the same contiguous row, so the result is the same bit for bit."""
+    h = np.empty(len(N), np.result_type(N, G))
+    h0 = np.empty(n0, h.dtype) if n0 else None
+    for i in range(0, len(N), _WIDTH_ROWS):
+        P = np.abs(_small_matmul_t(N[i:i + _WIDTH_ROWS], G))
+        h[i:i + len(P)] = P.sum(axis=1)
+        if i < n0:
+            h0[i:min(n0, i + len(P))] = P[:n0 - i, :n_prefix].sum(axis=1)
+    return h, h0
 
 
 def _small_matmul_t(N: np.ndarray, G: np.ndarray) -> np.ndarray:

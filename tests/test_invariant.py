@@ -243,6 +243,26 @@ def test_coverage_is_one_in_sample(acl):
         assert inv.coverage(Eh, e).outer == 1.0
 
 
+def test_facet_widths_in_blocks_are_the_whole_arrays_sums(monkeypatch):
+    # h_f = Σ_k |N_f·g_k| (and the prefix widths of the first facet rows) formed a few rows
+    # at a time: the same numbers bit for bit as the sums over the whole |N Gᵀ|, also where
+    # the prefix rows span several blocks
+    from hlip_jax import sets
+    monkeypatch.setattr(sets, "_WIDTH_ROWS", 7)
+    rng = np.random.default_rng(3)
+    G, N = rng.normal(size=(40, 3)), rng.normal(size=(53, 3))
+    P = np.abs(sets._small_matmul_t(N, G))
+    for n0, n_prefix in [(0, 0), (5, 9), (23, 12), (53, 40)]:
+        h, h0 = sets._facet_widths(N, G, n0, n_prefix)
+        assert np.array_equal(h, P.sum(axis=1))
+        assert (h0 is None) if n0 == 0 else np.array_equal(h0, P[:n0, :n_prefix].sum(axis=1))
+    z = sets.zonotope(np.zeros(3), G, n_prefix=10)
+    monkeypatch.setattr(sets, "_WIDTH_ROWS", 1 << 30)
+    whole = sets.zonotope(np.zeros(3), G, n_prefix=10)
+    assert np.array_equal(z.offsets, whole.offsets)
+    assert np.array_equal(z.prefix_offsets, whole.prefix_offsets)
+
+
 def test_two_pass_membership_matches_full_facet_test():
     # LQR F_s has tens of terms: membership first uses the facets of the leading terms,
     # then the full facet set on the undecided band; it must equal the single full pass.
