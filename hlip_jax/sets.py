@@ -447,12 +447,10 @@ def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
     """
     c = _f64(z.center)
     G = _f64(z.generators).reshape(-1, c.shape[0])
-    N = zonotope_normals(G)
-    h0 = None
+    N, n0 = zonotope_normals(G), 0
     if 0 < n_prefix < G.shape[0]:
         N0 = zonotope_normals(G[:n_prefix])
-        N = _unique_directions(np.concatenate([N0, N]))  # keeps N0 first, in order
-    n0 = len(N0) if 0 < n_prefix < G.shape[0] else 0
+        N, n0 = _unique_directions(np.concatenate([N0, N])), len(N0)  # keeps N0 first, in order
     h, h0 = _facet_widths(N, G, n0, n_prefix)
     return Zonotope(c, G, N, h, h0)
 
