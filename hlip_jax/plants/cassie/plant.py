@@ -284,7 +284,7 @@ def _prepare(params: Params, state: State, cmd: StepCommand, physics: str = "jax
 
 
 def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState, key, du_err,
-            terms_impl: str = "mjx"):
+            terms_impl: str):
     """(plant state at SSP⁻_{k+1}, StepResult) from the last tick state of the step (the
     true state, on the physics' own model: a pelvis COM error moves the COM it reports).
     ``terms_impl``: how the whole-body terms are computed (:class:`tick.Settings`' ``terms``),
@@ -301,7 +301,7 @@ def _finish(state: State, cmd: StepCommand, ctx: tick.Context, s: tick.TickState
                            duration=s.t_step, leg_gap=s.gap)
 
 
-def _estimated_state(ctx: tick.Context, s: tick.TickState, terms_impl: str = "mjx"):
+def _estimated_state(ctx: tick.Context, s: tick.TickState, terms_impl: str):
     """[c, p, v] per plane (2, 3) at SSP⁻_{k+1} as the non-ideal robot's controller has it:
     the measurement and velocity estimate that the next tick's ``sense`` and ``estimate``
     stages make from this state (the same noise key and filter state), on the controller's
