@@ -22,7 +22,7 @@ import sys
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hlip_jax.stats import rate_text  # noqa: E402
+from hlip_jax.analysis.stats import rate_text  # noqa: E402
 
 SETS = (
     ("pushes 100 N towards +y", re.compile(r"push-100-left-")),

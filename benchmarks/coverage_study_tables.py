@@ -7,7 +7,7 @@ Usage::
 Prints two tables:
 
 * which robots walked, per path × peak speed: walked / runs with the exact 95 % Clopper–Pearson
-  interval (:func:`hlip_jax.stats.clopper_pearson`), the median RMS COM distance to the path
+  interval (:func:`hlip_jax.analysis.stats.clopper_pearson`), the median RMS COM distance to the path
   (``rms_track_err``) of the walkers, and the range of steps at which the others fell;
 * the across-run coverage of ``coverage.csv`` per (path, plane, W method): training / test runs
   (with how many of them fell), test samples, coverage and its interval, E's half-extent along
@@ -22,7 +22,8 @@ import pathlib
 import statistics
 from collections import defaultdict
 
-from hlip_jax import stats, store
+from hlip_jax import store
+from hlip_jax.analysis import stats
 
 
 def walked_table(rows: list[dict]) -> list[str]:

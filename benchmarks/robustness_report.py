@@ -32,7 +32,7 @@ from hlip_jax import coverage as cov  # noqa: E402
 from hlip_jax import store, sweep  # noqa: E402
 from hlip_jax.config import RealismConfig  # noqa: E402
 from hlip_jax.metrics import W_MIN_HALFWIDTH  # noqa: E402
-from hlip_jax.stats import clopper_pearson, rate_text  # noqa: E402
+from hlip_jax.analysis.stats import clopper_pearson, rate_text  # noqa: E402
 
 IDEAL = RealismConfig()
 

@@ -276,15 +276,22 @@ def build_parser() -> argparse.ArgumentParser:
                     "disturbance.pushes.0.time, or 'path'); default: the first two axes")
 
     cv = sub.add_parser("coverage", help="(re)compute the across-run coverage of a results "
-                        "directory", description="Write DIR/coverage.csv: W from the training "
-                        "runs, E's coverage of the test runs' errors with 95 %% intervals "
-                        "(hlip_jax.coverage), and print it; `report` then shows this split.")
+                        "directory", description="Write DIR/coverage.csv: W and E from the "
+                        "training runs, the test runs' coverage over runs (Clopper-Pearson) and "
+                        "over steps (run-cluster bootstrap), per held-out split "
+                        "(hlip_jax/analysis), and print the run-level rows; `report` shows it. "
+                        "Unset options take the sweep's [analysis] table.")
     cv.add_argument("dir", metavar="DIR")
     cv.add_argument("--q", type=float, default=None, metavar="Q",
-                    help="level of the split-conformal quantile box W, in (0, 1) (default 0.9)")
+                    help="level of the conformal sets, in (0, 1) (default: the sweep's, 0.9)")
+    cv.add_argument("--split", nargs="+", default=None, metavar="NAME",
+                    help="held-out splits: seed, path, speed (default: the sweep's, all three)")
+    cv.add_argument("--warmup", type=int, default=None, metavar="K",
+                    help="errors k < K are the start's transient, not counted (default: the "
+                    "sweep's, 3)")
     cv.add_argument("--train-on", default=None, metavar="FIELD=V1,V2",
-                    help="W from the runs whose swept FIELD (a grid field or 'path') is one of "
-                    "the values, coverage on the others (default: half of the replicate seeds)")
+                    help="instead of the splits: W from the runs whose swept FIELD (a grid "
+                    "field or 'path') is one of the values, coverage on the others")
 
     _ticks_parser(sub)
 
@@ -304,7 +311,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "encloses the chosen groups' W, rounded up to 1e-4 (hlip_jax.robust).")
     wb.add_argument("dir", metavar="DIR")
     wb.add_argument("--method", default="box", metavar="METHOD",
-                    help="which W of coverage.csv: box, box_with_push or quantile (default box)")
+                    help="which W of coverage.csv: box, hull, conformal_step or conformal_run "
+                    "(default box)")
     wb.add_argument("--group", action="append", default=None, metavar="NAME",
                     help="a group of coverage.csv (repeat for several; default: all groups)")
 
@@ -467,21 +475,39 @@ def _train_on(text: str | None):
     return field.strip(), [value(v.strip()) for v in vals.split(",")]
 
 
+def _coverage_settings(d: Path, args):
+    """The directory's analysis settings with the command line's --q, --split, --warmup."""
+    import dataclasses
+
+    from hlip_jax import store
+    from hlip_jax.analysis import settings as an
+    base = an.to_dict(store.analysis_settings(d))
+    for opt, key, val in (("--q", "q", args.q), ("--split", "splits", args.split),
+                          ("--warmup", "warmup", args.warmup)):
+        if val is not None:
+            try:
+                an.from_dict({key: val}, opt)
+            except ValueError as err:
+                raise UserError(str(err).replace(f"{opt}.{key}", opt)) from None
+            base[key] = val
+    return an.from_dict(base)
+
+
 def cmd_coverage(args) -> int:
     from hlip_jax import store
     d = Path(args.dir)
     if not d.is_dir():
         raise UserError(f"{d}: results directory not found")
-    q = store.COVERAGE_Q if args.q is None else args.q
-    if not 0.0 < q < 1.0:
-        raise UserError(f"--q: expected a level in (0, 1), got {q}")
+    settings = _coverage_settings(d, args)
     store.check_chunks(d)
     from hlip_jax import runner
     with runner.on_host():
-        path = store.write_coverage(d, q, _train_on(args.train_on))
+        path = store.write_coverage(d, settings, _train_on(args.train_on))
     for r in store.read_coverage(d):
-        print(f"{r['group']:<32} {r['plane']:<9} {r['w_method']:<14} {r['split']:<12} "
-              f"coverage {r['coverage']} [{r['ci_low']}, {r['ci_high']}] of {r['test_samples']}")
+        if r["level"] == "run":
+            print(f"{r['group']:<32} {r['plane']:<9} {r['w_method']:<15} {r['split']:<6} "
+                  f"runs covered {r['covered']}/{r['test_samples']} "
+                  f"[{r['ci_low']}, {r['ci_high']}] {r['note']}")
     print(f"coverage: {path}")
     return EXIT_OK
 
@@ -575,12 +601,13 @@ def cmd_whull(args) -> int:
 def cmd_wbox(args) -> int:
     import numpy as np
 
-    from hlip_jax import coverage, robust, store
+    from hlip_jax import robust, store
+    from hlip_jax.analysis import estimators
     d = Path(args.dir)
     if not d.is_dir():
         raise UserError(f"{d}: results directory not found")
-    if args.method not in coverage.W_METHODS:
-        raise UserError(f"--method: {args.method!r}; allowed: {', '.join(coverage.W_METHODS)}")
+    if args.method not in estimators.METHODS:
+        raise UserError(f"--method: {args.method!r}; allowed: {', '.join(estimators.METHODS)}")
     try:
         rows = store.read_coverage(d)
         frame, w, groups = robust.w_from_coverage(rows, args.method, args.group)

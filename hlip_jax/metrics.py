@@ -55,6 +55,7 @@ import math
 import numpy as np
 
 from hlip_jax import steplog
+from hlip_jax.analysis.errors import W_MIN_HALFWIDTH, error_samples, placement
 
 SUMMARY_METRICS = (
     "steps", "rms_track_err", "max_track_err", "rms_pos_err", "final_pos_err",
@@ -82,84 +83,6 @@ def _seg_dist(P: np.ndarray, R: np.ndarray) -> np.ndarray:
     s = np.clip(np.sum(ap * ab[None], axis=2) / L2[None], 0.0, 1.0)
     d = ap - s[..., None] * ab[None]
     return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
-
-
-def error_model(log: dict, s: int):
-    """(A, B, K, state slice) of the error dynamics of scenario ``s`` (e⁺ = (A + BK) e + w in
-    the tube; :func:`closed_loop` for every mode).
-
-    A gain that acts on the global position c (non-zero c entry), or a nominal whose c restarts
-    from the robot's every step (the log's ``anchor``), bounds the error in c: the analysis
-    uses the full [c, p, v] state.  A tube gain on [p, v] only leaves c integrating
-    (eigenvalue 1: no bounded invariant set in c), so the analysis then uses the 2-state
-    [p, v] system."""
-    A = np.asarray(log["A"][s], np.float64)
-    B = np.asarray(log["B"][s], np.float64)
-    K = np.asarray(log["K_gain"][s], np.float64)
-    if K.shape[-1] == 3 and (np.any(K[:, 0] != 0.0) or _anchor(log, s)[0] == 1.0):
-        return A, B, K, slice(0, 3)
-    return A[1:, 1:], B[1:], K[:, -2:], slice(1, 3)
-
-
-def _anchor(log: dict, s: int) -> np.ndarray:
-    return np.asarray(log["anchor"][s], np.float64)
-
-
-def error_system(log: dict, s: int):
-    """(A, B, K, state slice, A_cl, β): :func:`error_model` and :func:`closed_loop` of
-    scenario ``s`` from one evaluation of the error model."""
-    from hlip_jax import invariant as inv
-    A, B, K, sl = error_model(log, s)
-    return (A, B, K, sl, *inv.closed_loop(A, B, K, _anchor(log, s)[sl]))
-
-
-def closed_loop(log: dict, s: int):
-    """(A_cl (2, n, n), β) of scenario ``s``'s error system e⁺ = A_cl e + w + β B δu on the
-    state :func:`error_model` picks (:func:`hlip_jax.invariant.closed_loop`)."""
-    return error_system(log, s)[4:]
-
-
-#: W boxes narrower than this half-width in an axis are widened to it [m or m/s]: a state the
-#: disturbance never reaches (e.g. every axis of a noise-free float64 H-LIP run) would
-#: otherwise give a flat W, for which no mRPI set with an interior exists.
-W_MIN_HALFWIDTH = 1e-6
-
-
-def placement(log: dict, s: int) -> np.ndarray:
-    """(K, 2) foot-placement errors δu_k of scenario ``s`` [m] (NaN where e is)."""
-    from hlip_jax import invariant as inv
-    return inv.placement_errors(log["u_robot"][s], log["u_hlip"][s], log["e"][s],
-                                log["K_gain"][s])
-
-
-def analysis_frame(log: dict, s: int) -> str:
-    """The frame of scenario ``s``'s per-plane error analysis: "heading" (sagittal along the
-    path heading θ_d(t_k), lateral to its left; :func:`hlip_jax.invariant.heading_frame`) when
-    the stepping gain is the same in both planes, else "world" (x, y): a different gain per
-    plane does not commute with the rotation."""
-    K = np.asarray(log["K_gain"][s], np.float64)
-    return "heading" if K.ndim == 1 or np.array_equal(K[0], K[1]) else "world"
-
-
-def error_samples(log: dict, s: int, mask: np.ndarray, du: np.ndarray):
-    """(A, B, K, A_cl, e, w, wmask) of scenario ``s`` in its analysis frame and state
-    (:func:`analysis_frame`, :func:`error_model`): the closed-loop matrix A_cl (2, n, n) of
-    :func:`closed_loop`, errors e (K, 2, n), error-system disturbances w (K−1, 2, n) with
-    e_{k+1} = A_cl e_k + w_k, and the mask of counted w (both ends in ``mask``); ``du``
-    (K, 2): the foot-placement errors (:func:`_placement`)."""
-    from hlip_jax import invariant as inv
-    A, B, Kg, sl, Acl, beta = error_system(log, s)
-    x = np.asarray(log["x_robot"][s], np.float64)[:, :, sl]     # (K, 2, n)
-    u = np.asarray(log["u_robot"][s], np.float64)
-    e = np.asarray(log["e"][s], np.float64)[:, :, sl]
-    # the error system's disturbance d = w + B δu: w from the robot's own S2S data (same
-    # definition as the log's w), δu its foot-placement error
-    w = steplog.s2s_residual(A, B, x, u)
-    w = w + beta * B[None, None, :] * du[:-1, :, None]
-    if analysis_frame(log, s) == "heading":
-        e, w = inv.heading_frame(np.where(mask[:, None, None], e, 0.0), w,
-                                 np.asarray(log["ref_heading"][s], np.float64), Acl[0])
-    return A, B, Kg, Acl, e, w, mask[1:] & mask[:-1]
 
 
 def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> dict:

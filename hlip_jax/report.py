@@ -15,7 +15,7 @@ Reads only the store (``manifest.json``, ``chunks/``, ``summary.csv``; see
   sagittal and lateral planes (steps rotated into the path heading θ_d(t_k)); the invariant-set
   figure per plane (:func:`hlip_jax.set_figures.plot_planes`: E of the [p, v] error dynamics
   with the observed errors; planes of the path's heading frame when the gain is the same in
-  both, :func:`hlip_jax.metrics.analysis_frame`); and a coverage table — W, E and the in-sample bracket
+  both, :func:`hlip_jax.errors.analysis_frame`); and a coverage table — W, E and the in-sample bracket
   (inner F_s, outer F_s/(1−α)) from all runs of that path sharing the representative's gain,
   plus held-out coverage (W from half of those runs, coverage on the other half; with a single
   run, the per-run figure of ``summary.csv``: W from the first half of its steps).
@@ -38,6 +38,7 @@ from typing import Sequence
 import numpy as np
 
 from hlip_jax import metrics, set_figures, steplog, store, sweep, tick_report
+from hlip_jax.analysis import errors
 
 __all__ = ["ReportError", "write_report", "FIGURE_KINDS"]
 
@@ -165,24 +166,24 @@ def fig_steps(log, path: Path, title: str) -> None:
 def _plane_mats(log, s):
     """What runs must share to pool their errors: the error model's A, B, K and the
     closed-loop matrix (which the planner's ``mpc.mode`` changes)."""
-    A, B, K, _, Acl, _ = metrics.error_system(log, s)
+    A, B, K, _, Acl, _ = errors.error_system(log, s)
     return A, B, K, Acl
 
 
 def invariant_analysis(log, members: list[int]):
     """:func:`hlip_jax.invariant.analyse` on the errors of ``members`` (rows of ``log``, same
-    A, B, K; [c, p, v] or [p, v] as :func:`hlip_jax.metrics.error_model` decides): W box,
+    A, B, K; [c, p, v] or [p, v] as :func:`hlip_jax.errors.error_model` decides): W box,
     held-out half when there are ≥ 2 runs."""
     from hlip_jax import invariant as inv
-    A, B, K, sl = metrics.error_model(log, members[0])
+    A, B, K, sl = errors.error_model(log, members[0])
     sel = np.asarray(members)
     valid = steplog.alive(log["valid"][sel])
     hold = 0.5 if len(members) >= 2 else 0.0
     heading = (np.asarray(log["ref_heading"][sel], np.float64)
-               if metrics.analysis_frame(log, members[0]) == "heading" else None)
+               if errors.analysis_frame(log, members[0]) == "heading" else None)
     return inv.analyse(log["x_robot"][sel], log["u_robot"][sel], valid, log["e"][sel],
                        A, B, K, W_estimator="box", holdout_fraction=hold, seed=0,
-                       min_halfwidth=metrics.W_MIN_HALFWIDTH, u_hlip=log["u_hlip"][sel],
+                       min_halfwidth=errors.W_MIN_HALFWIDTH, u_hlip=log["u_hlip"][sel],
                        heading=heading, anchor=np.asarray(log["anchor"][members[0]])[sl])
 
 
@@ -191,9 +192,9 @@ def fig_invariant(an, log, members, path: Path, title: str) -> None:
     plt = _plt()
     sel = np.asarray(members)
     valid = steplog.alive(log["valid"][sel])
-    sl = metrics.error_model(log, members[0])[3]
+    sl = errors.error_model(log, members[0])[3]
     e = np.asarray(log["e"][sel], np.float64)[..., sl]
-    if metrics.analysis_frame(log, members[0]) == "heading":
+    if errors.analysis_frame(log, members[0]) == "heading":
         e = inv.to_heading(e, np.asarray(log["ref_heading"][sel], np.float64))
     e = e[valid]                                                     # (n, 2, dim)
     fig = set_figures.plot_planes((an.planes[0].E, an.planes[1].E), (e[:, 0], e[:, 1]),
@@ -244,12 +245,12 @@ COVERAGE_HEAD = ["plane", "W box lo – hi", "s", "α", "size of E",
                  "consistency: in-sample coverage (inner – outer)", "held-out coverage"]
 
 
-ACROSS_HEAD = ["group", "plane", "W", "split", "runs train / test", "test samples",
-               "coverage [95 % CI]", "consistency: in-sample", "after a push (n)",
-               "E along c / largest test error c [m]", "E along p / largest test error p [m]",
-               "E along v / largest test error v [m/s]"]
-W_LABELS = {"box": "box (no push steps)", "box_with_push": "box incl. push steps",
-            "quantile": "conformal q-box"}
+ACROSS_HEAD = ["group", "split", "plane", "E", "runs train / test", "runs covered [95 % CI]",
+               "steps covered [95 % CI over runs]", "in-sample (runs)", "push windows in E (runs)",
+               "c [m]: E / q-quantile / max", "p [m]: E / q-quantile / max",
+               "v [m/s]: E / q-quantile / max"]
+W_LABELS = {"box": "mRPI of box W", "hull": "mRPI of hull W",
+            "conformal_step": "mRPI of conformal step box", "conformal_run": "run-calibrated"}
 
 
 def _ci_text(r: dict) -> str:
@@ -269,48 +270,58 @@ def _runs_text(r: dict) -> str:
 
 
 def across_run_rows(cov_rows: list[dict]) -> list[list[str]]:
-    """Rows of the report's across-run coverage table from ``coverage.csv`` rows."""
+    """Rows of the report's coverage table from ``coverage.csv``: one per group, split, plane
+    and method, the run-level figure first and the step-level one beside it."""
+    steps = {(r["group"], r["split"], r["plane"], r["w_method"]): r for r in cov_rows
+             if r["level"] == "step"}
     out = []
-    for r in cov_rows:
+    for r in (r for r in cov_rows if r["level"] == "run"):
+        st = steps.get((r["group"], r["split"], r["plane"], r["w_method"]), {})
         w = W_LABELS.get(r["w_method"], r["w_method"])
-        if r["w_method"] == "quantile":
+        if not _isnan(r.get("q", math.nan)):
             w += f" q={_fmt(r['q'])}"
-        push = ("–" if not r.get("push_test_samples") else
-                f"{_fmt(r['push_coverage'])} ({r['push_test_samples']})")
-        sizes = [f"{_fmt(r[f'e_{c}_max'], 3)} / {_fmt(r[f'err_{c}_max'], 3)}" for c in "cpv"]
-        out.append([r["group"], r["plane"], w, r["split"], _runs_text(r), str(r["test_samples"]),
-                    _ci_text(r), _fmt(r["insample_coverage"]), push] + sizes)
+        push = ("–" if not r.get("push_test_runs") else
+                f"{_fmt(r['push_coverage'])} ({r['push_test_runs']})")
+        sizes = [" / ".join(_fmt(r[f"{k}_{c}"], 3) for k in ("e_half", "err_q", "err_max"))
+                 for c in "cpv"]
+        out.append([r["group"], r["split"], r["plane"], w, _runs_text(r), _ci_text(r),
+                    _ci_text(st) if st else "–", _fmt(r["insample_coverage"]), push] + sizes)
     return out
 
 
 ACROSS_NOTE = (
-    "Primary statistic: W from the training runs, E = mRPI(A + BK, W), coverage = fraction of "
-    "the test runs' pre-impact errors inside E with a 95 % Clopper–Pearson interval (samples "
-    "taken as independent; errors of one run are correlated, so read it beside the number of "
-    "runs). Split 'seed': by swept seed, no seed on both sides ('run': the seed is not swept, "
-    "each run is its own replicate); 'time': a group of one run, W from its first half of "
-    "the steps, tested on the second (stationarity, not prediction). Groups: runs of one "
-    "path with the same plant, S2S model and gain (the label lists the swept values they "
-    "share). W comes from the training runs that walked to the end (runs that fell are "
-    "counted as 'fell' and left out of W; a fallen test run's errors count up to its fall). "
-    "W 'box' leaves out the steps that overlap a push ('box incl. push steps' "
-    "keeps them); 'conformal q-box': per coordinate the ⌈(n+1)q⌉-th smallest training |d|, "
-    "which covers a new exchangeable disturbance sample with probability ≥ q per coordinate "
-    "(not jointly, and not a guarantee for the errors in E). In-sample coverage (training "
-    "errors in their own E) is a consistency check only. E along c/p/v: the largest extent of "
-    "E along that state axis beside the largest measured |error| of the test samples "
-    "(c: COM position error in metres; '–' on the [p, v] state, where c is not bounded). "
-    "From coverage.csv.")
+    "What is guaranteed. A test run counts as covered when it did not fall and every kept "
+    "pre-impact error of it lies in E; the interval is Clopper–Pearson over runs, the unit of "
+    "independence (steps of one run are correlated). 'run-calibrated' is the run-level "
+    "conformal set: E_shape = mRPI(A + BK, box W of the training runs), each training run "
+    "scored by the smallest scale of E_shape that holds all its kept errors (a fall scores "
+    "infinity), E_q = the ⌈(n+1)q⌉-th smallest score times E_shape; a new run drawn "
+    "exchangeably with the training runs stays in E_q with probability ≥ q. The split says "
+    "what exchangeable means here: 'seed' (other noise draws of the same paths and speeds) "
+    "gives it; 'path' and 'speed' hold out paths or speeds that no training run walked, "
+    "which are not a random draw, so there the figure is a check, not a guarantee. The mRPI "
+    "sets of a box W are invariance sets (if every future disturbance stays in W), with no "
+    "probability attached; their size beside the test errors shows how conservative they are: "
+    "each size column gives E's half-width, the q-quantile over test runs of each run's "
+    "largest |error|, and the largest. Steps: the fraction of kept test errors in E, with a "
+    "bootstrap interval that resamples whole runs. Kept errors: after the warm-up (e_0 never "
+    "counts) and outside push windows (from a push until the error is back in the run's "
+    "pre-push box), which are reported apart and never enter W. From coverage.csv.")
 
 
 def across_run_section(doc, out: Path) -> None:
-    """The across-run coverage section from ``coverage.csv`` (written first if absent, e.g. a
-    results directory from before the file existed)."""
+    """The coverage section from ``coverage.csv`` (written first if absent, e.g. a results
+    directory from before the file existed)."""
     if not (out / store.COVERAGE).is_file():
         store.write_coverage(out)
-    doc.h(2, "Across-run coverage")
+    doc.h(2, "Coverage over held-out runs")
     doc.p(ACROSS_NOTE)
-    doc.table(ACROSS_HEAD, across_run_rows(store.read_coverage(out)))
+    rows = store.read_coverage(out)
+    if not any(r["level"] == "run" for r in rows):
+        doc.p("No group has runs that differ in a held-out field (seed, path or speed): no "
+              "held-out statistic. Sweep seeds (the [analysis] table's splits) to get one.")
+        return
+    doc.table(ACROSS_HEAD, across_run_rows(rows))
 
 
 # --------------------------------------------------------------------------------------------
@@ -596,7 +607,7 @@ def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
             and bool(np.asarray(log["valid"][pos[i]]).any())]
     doc.h(3, "Error invariant sets and coverage")
     try:
-        frame = metrics.analysis_frame(log, same[0])
+        frame = errors.analysis_frame(log, same[0])
         an = invariant_analysis(log, same)
         fig_invariant(an, log, same, fig_dir / f"{slug}_invariant.png", pname)
         doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")

@@ -252,8 +252,8 @@ def w_from_coverage(rows, method: str = "box", groups=None):
     the groups used).  ValueError (naming what is allowed) when ``method`` has no rows, a group
     is unknown, the rows mix frames, a plane is missing, or W is on [p, v] (the tube needs the
     COM position: a gain with ``with_position``)."""
-    from hlip_jax import coverage              # the coverage.csv format (scipy: not at start-up)
-    rows = [r for r in rows if r["w_method"] == method]
+    from hlip_jax.analysis import coverage     # the coverage.csv format (scipy: not at start-up)
+    rows = [r for r in rows if r["w_method"] == method and r["level"] == "run"]
     if not rows:
         raise ValueError(f"method {method!r}: no coverage.csv rows of it")
     known = sorted({str(r["group"]) for r in rows})

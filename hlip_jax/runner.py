@@ -22,6 +22,7 @@ from typing import Callable
 import numpy as np
 
 from hlip_jax import metrics, progress, store
+from hlip_jax.analysis import settings as analysis_settings
 from hlip_jax import sweep as sweep_mod
 
 
@@ -173,6 +174,7 @@ def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_cover
         "sweep_file": sw.source,
         "sweep_text": sw.text,
         "description": sw.description,
+        "analysis": analysis_settings.to_dict(sw.analysis),
         "axes": [{"fields": list(a.fields), "values": [list(v) for v in a.values],
                   "zipped": a.zipped} for a in sw.axes],
         "paths": list(sw.paths),

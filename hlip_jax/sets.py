@@ -210,6 +210,66 @@ class MRPI(NamedTuple):
         return self.outer.volume()
 
 
+def _facets(S):
+    """(normals (F, n), offsets (F,), centre (n,), symmetric) of a polytope with an
+    H-representation {x : N x ≤ b}, or {x : |N (x − c)| ≤ h} when ``symmetric``."""
+    S = S.outer if isinstance(S, MRPI) else S
+    if isinstance(S, Box):
+        lo, hi = _f64(S.lo), _f64(S.hi)
+        return np.eye(lo.size), 0.5 * (hi - lo), 0.5 * (lo + hi), True
+    if isinstance(S, Zonotope):
+        z = S if S.normals is not None else zonotope_hrep(S)
+        return _f64(z.normals), _f64(z.offsets), _f64(z.center), True
+    if isinstance(S, Hull):
+        h = S.canonical()
+        return _f64(h.normals), _f64(h.offsets), _f64(h.vertices).mean(axis=0), False
+    if isinstance(S, TemplatePolytope):
+        return _f64(S.normals), _f64(S.offsets), _f64(S.center), False
+    raise TypeError(f"S: Box, Zonotope, Hull, TemplatePolytope or MRPI expected, got "
+                    f"{type(S).__name__}")
+
+
+def gauge(S, points) -> np.ndarray:
+    """The scale of each point relative to the polytope S about S's centre c:
+
+        g(x) = min {s ≥ 0 : x ∈ c + s (S − c)} = max_f N_f (x − c) / (b_f − N_f c)
+
+    (for a zonotope max_f |N_f (x − c)| / h_f), so x ∈ S ⇔ g(x) ≤ 1.  points (..., n);
+    returns (...,) float64 (an MRPI bracket is measured against its outer set).  c must lie in
+    S's interior, which every set of this module has by construction."""
+    N, b, c, sym = _facets(S)
+    x = _f64(points) - c
+    r = x @ N.T
+    if sym:
+        return np.max(np.abs(r) / np.maximum(b, np.finfo(float).tiny), axis=-1)
+    return np.max(r / np.maximum(b - N @ c, np.finfo(float).tiny), axis=-1)
+
+
+class Scaled(NamedTuple):
+    """The set c + s (S − c): ``base`` S (a polytope of this module, or an MRPI bracket whose
+    outer set is used) scaled by ``s`` ≥ 0 about its centre c (the calibrated sets of
+    :mod:`hlip_jax.analysis.estimators`)."""
+    base: Any
+    s: float
+
+    @property
+    def dim(self) -> int:
+        return self.base.dim
+
+    def support(self, directions):
+        """h(d) = dᵀc + s (h_S(d) − dᵀc)."""
+        D = _f64(directions)
+        dc = D @ _facets(self.base)[2]
+        return dc + self.s * (_f64(self.base.support(D)) - dc)
+
+    def contains(self, points, tol: float = 1e-9):
+        """g_S(x) ≤ s (1 + tol) per point (:func:`gauge`)."""
+        return gauge(self.base, points) <= self.s * (1.0 + tol)
+
+    def volume(self):
+        return float(self.base.volume()) * self.s ** self.dim
+
+
 def _for_kernels(t):
     """Leaves ready for the jitted kernels: JAX arrays (and tracers) as they are, anything else
     as numpy.  A host array goes to the kernel as an argument; converting it with

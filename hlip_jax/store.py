@@ -56,9 +56,7 @@ from typing import Sequence
 import numpy as np
 
 from hlip_jax import steplog
-from hlip_jax.metrics import (SUMMARY_METRICS, W_MIN_HALFWIDTH, active_pushes,  # noqa: F401
-                              analysis_frame, error_model, error_samples, first_push,
-                              placement, push_recovery, scenario_metrics)
+from hlip_jax.metrics import SUMMARY_METRICS, active_pushes, first_push, scenario_metrics
 from hlip_jax import sweep as sweep_mod
 
 __all__ = [
@@ -436,55 +434,34 @@ def _read_csv(p: Path) -> list[dict]:
 # coverage.csv
 
 COVERAGE = "coverage.csv"
-#: level q of the split-conformal W box in coverage.csv (:mod:`hlip_jax.coverage`)
-COVERAGE_Q = 0.9
 
 
-def _push_masks(t: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray]:
-    """(dpush (K−1,), epush (K,)) of a run with pre-impact plant times ``t`` (K,) [s]: steps
-    whose interval [t_k, t_{k+1}] overlaps a push, and errors at or after the first push."""
-    pushes = active_pushes(cfg)
-    dpush = np.zeros(t.size - 1, bool)
-    for p in pushes:
-        dpush |= (t[:-1] <= p.time + p.duration) & (t[1:] >= p.time)
-    first = first_push(cfg)
-    epush = t >= first - 1e-9 if first is not None else np.zeros(t.size, bool)
-    return dpush, epush
+def _pushes(cfg) -> list[tuple[float, float]]:
+    """The scenario's acting pushes as (start [s], duration [s]) on the plant's clock."""
+    return [(float(p.time), float(p.duration)) for p in active_pushes(cfg)]
 
 
-def _run_samples(z: dict, j: int, cfg):
-    """(group key, A + BK per plane, frame, :class:`hlip_jax.coverage.RunSamples`) of row ``j``
-    of a chunk, with the same errors and disturbances as the summary metrics."""
-    from hlip_jax import coverage as cov
-    mask = steplog.alive(z["valid"][j])
-    A, B, Kg, Acl, e, w, wmask = error_samples(z, j, mask, placement(z, j))
-    frame = analysis_frame(z, j)
-    ec = np.asarray(z["e"][j], np.float64)[:, :, 0]
-    if frame == "heading":
-        ec = steplog.to_heading_frame(ec, np.asarray(z["ref_heading"][j], np.float64))
-    t = np.asarray(z["t_plant"][j], np.float64)
-    dpush, epush = _push_masks(np.where(mask, t, np.inf), cfg)
-    key = (cfg.swept.get("path", ""), cfg.plant, frame,
-           np.round(np.concatenate([A.ravel(), B.ravel(), Kg.ravel(), Acl.ravel()]), 12).tobytes())
-    fell = bool(np.asarray(z["fail_step"][j]) >= 0)
-    return key, Acl, frame, cov.RunSamples(e, mask, epush & mask, w, wmask, dpush & wmask, ec,
-                                           fell)
+def _group_key(z: dict, j: int, cfg, frame: str) -> tuple:
+    """Runs analysed together share the path, plant, analysis frame and S2S model (A, B, K)."""
+    mats = [np.asarray(z[k][j], np.float64).ravel() for k in ("A", "B", "K_gain", "anchor")]
+    return (cfg.swept.get("path", ""), cfg.plant, frame, np.round(np.concatenate(mats), 12).tobytes())
 
 
-def _group_label(cfgs: list) -> str:
-    """The path (paths joined by '+'), then the swept fields (not the seed) that every run of
-    the group shares."""
+def _group_label(cfgs: list, held: str) -> str:
+    """The path (paths joined by '+'), then the swept fields (neither the seed nor the held-out
+    field) that every run of the group shares."""
     first = cfgs[0].swept
-    same = [f"{k}={v}" for k, v in first.items() if k not in ("path", "seed")
+    same = [f"{k}={v}" for k, v in first.items() if k not in ("path", "seed", held)
             and all(c.swept.get(k) == v for c in cfgs)]
     paths = "+".join(dict.fromkeys(str(c.swept.get("path", "")) for c in cfgs))
     return paths + ("/" + ",".join(same) if same else "")
 
 
-def _alive_runs(out_dir, chosen=None):
-    """(scenario index, config, group key, A + BK per plane, frame, RunSamples) of every run
-    with a valid step (:func:`_run_samples`), in chunk order; ``chosen``: scenario indices to
-    keep (None: all)."""
+def _analysed_runs(out_dir, warmup: int, chosen=None):
+    """(scenario index, config, group key, A + BK per plane, frame,
+    :class:`hlip_jax.analysis.runs.RunErrors`) of every run with a valid step, in chunk
+    order; ``chosen``: scenario indices to keep (None: all)."""
+    from hlip_jax.analysis import runs
     chosen = None if chosen is None else set(int(i) for i in chosen)
     configs = read_manifest(out_dir)["configs"]
     for f in chunk_files(out_dir):
@@ -493,80 +470,96 @@ def _alive_runs(out_dir, chosen=None):
             if (chosen is not None and int(i) not in chosen) or not steplog.alive(z["valid"][j]).any():
                 continue
             cfg = sweep_mod.config_from_dict(configs[int(i)])
-            yield (int(i), cfg, *_run_samples(z, j, cfg))
+            Acl, frame, run = runs.run_errors(z, j, _pushes(cfg), warmup)
+            yield int(i), cfg, _group_key(z, j, cfg, frame), Acl, frame, run
 
 
-def _coverage_groups(out_dir, field: str | None) -> list[dict]:
-    """Runs with a valid step, grouped by path, plant, analysis frame and S2S model (A, B, K);
-    the path is left out of the key when ``field`` is "path" (W from some paths, tested on
-    the others).  Each group: A_cl, frame, runs, keys (replicate keys, or the values of
-    ``field``), configs."""
+def _groups(runs_list, field: str) -> list[dict]:
+    """Runs grouped by :func:`_group_key` (without the path when ``field`` is "path": W from
+    some paths, tested on the others); each group: Acl, frame, runs, keys (the runs' values of
+    ``field``; None where it is not swept), cfgs."""
     groups: dict = {}
-    for i, cfg, key, Acl, frame, run in _alive_runs(out_dir):
-        if field is not None and field not in cfg.swept:
-            raise StoreError(f"coverage train_on: {field!r} is not a swept field of "
-                             f"scenario {cfg.name!r} (swept: {', '.join(cfg.swept)})")
+    for i, cfg, key, Acl, frame, run in runs_list:
         g = groups.setdefault(key[1:] if field == "path" else key,
-                              {"Acl": Acl, "frame": frame, "runs": [], "keys": [],
-                               "cfgs": []})
+                              {"Acl": Acl, "frame": frame, "runs": [], "keys": [], "cfgs": []})
         g["runs"].append(run)
-        g["keys"].append(cfg.swept[field] if field is not None else cfg.swept.get("seed", i))
+        g["keys"].append(cfg.swept.get(field))
         g["cfgs"].append(cfg)
     return list(groups.values())
 
 
-def disturbance_samples(out_dir, chosen=None):
+def disturbance_samples(out_dir, chosen=None, warmup: int | None = None):
     """The error-system disturbances d of a results directory's runs, pooled per plane, as
-    coverage.csv's W sees them (counted steps, the steps of pushes left out): (frame,
-    [(N, n) plane 1, (N, n) plane 2], runs used).  ``chosen``: scenario indices (None: all).
-    StoreError when the runs are in different analysis frames or none is left."""
-    frames, parts, runs = set(), ([], []), 0
-    for *_, frame, run in _alive_runs(out_dir, chosen):
+    coverage.csv's W sees them (the kept disturbances, :mod:`hlip_jax.analysis.masks`):
+    (frame, [(N, n) plane 1, (N, n) plane 2], runs used).  ``chosen``: scenario indices (None:
+    all); ``warmup``: the directory's analysis setting when None.  StoreError when the runs are
+    in different analysis frames or none is left."""
+    warmup = analysis_settings(out_dir).warmup if warmup is None else warmup
+    frames, parts, n_runs = set(), ([], []), 0
+    for *_, frame, run in _analysed_runs(out_dir, warmup, chosen):
         frames.add(frame)
-        keep = run.dmask & ~run.dpush
         for p in (0, 1):
-            parts[p].append(np.asarray(run.d, np.float64)[keep, p, :])
-        runs += 1
+            parts[p].append(run.kept_d(p))
+        n_runs += 1
     if len(frames) > 1:
         raise StoreError(f"the runs are analysed in frames {sorted(frames)}; choose runs of one "
                          "frame (one gain in both planes gives the heading frame)")
-    if not runs or not all(np.concatenate(p).size for p in parts):
-        raise StoreError("no disturbance samples: no chosen run has two counted steps")
-    return frames.pop(), [np.concatenate(p) for p in parts], runs
+    if not n_runs or not all(np.concatenate(p).size for p in parts):
+        raise StoreError("no disturbance samples: no chosen run has two kept steps")
+    return frames.pop(), [np.concatenate(p) for p in parts], n_runs
 
 
-def coverage_rows(out_dir, q: float = COVERAGE_Q, train_on: tuple | None = None) -> list[dict]:
-    """coverage.csv rows of a results directory (:func:`hlip_jax.coverage.group_rows`) per
-    group of :func:`_coverage_groups`.  Default split: replicates are the values of the swept
-    ``seed`` (each run its own replicate when the seed is not swept).  ``train_on`` =
-    (field, values), e.g. ("path", ["circle"]): W from the runs whose swept ``field`` (a grid
-    field, or "path") takes one of ``values``, coverage on the others of the group."""
-    from hlip_jax import coverage as cov
-    if not 0.0 < q < 1.0:
-        raise StoreError(f"coverage q: expected a level in (0, 1), got {q!r}")
-    field, values = (None, None) if train_on is None else (train_on[0], list(train_on[1]))
-    rows, seen = [], {}
-    for g in _coverage_groups(out_dir, field):
-        label = _group_label(g["cfgs"])
-        seen[label] = seen.get(label, 0) + 1
-        label += f" #{seen[label]}" if seen[label] > 1 else ""
-        planes = cov.PLANES[g["frame"]]
-        split = (f"{field} in {values}" if field is not None else
-                 "seed" if all("seed" in c.swept for c in g["cfgs"]) else "run")
-        rows += cov.group_rows(label, g["Acl"], g["runs"], g["keys"], planes, q,
-                               min_halfwidth=W_MIN_HALFWIDTH, split_name=split,
-                               train_values=values)
+def analysis_settings(out_dir):
+    """The results directory's :class:`hlip_jax.analysis.settings.AnalysisConfig` (from its
+    manifest; the defaults for a directory written before the sweep's ``[analysis]`` table)."""
+    from hlip_jax.analysis import settings
+    raw = read_manifest(out_dir).get("analysis")
+    try:
+        return settings.from_dict(raw, "manifest.json analysis")
+    except ValueError as err:
+        raise StoreError(f"{Path(out_dir) / MANIFEST}: {err}") from None
+
+
+def coverage_rows(out_dir, settings=None, train_on: tuple | None = None) -> list[dict]:
+    """coverage.csv rows of a results directory (:func:`hlip_jax.analysis.coverage.group_rows`)
+    for every split of ``settings`` (the directory's own when None), per group.  ``train_on`` =
+    (field, values), e.g. ("path", ["circle"]): one value split instead, W from the runs whose
+    swept ``field`` takes one of ``values``, coverage on the others of the group."""
+    from hlip_jax.analysis import coverage as cov, splits
+    settings = analysis_settings(out_dir) if settings is None else settings
+    runs_list = list(_analysed_runs(out_dir, settings.warmup))
+    if train_on is not None:
+        field = train_on[0]
+        missing = [cfg.name for _, cfg, *_ in runs_list if field not in cfg.swept]
+        if missing:
+            raise StoreError(f"coverage train_on: {field!r} is not a swept field of scenario "
+                             f"{missing[0]!r}")
+        todo = [(splits.Split(f"{field} in {list(train_on[1])}", field,
+                              "test runs take other values of " + field), list(train_on[1]))]
+    else:
+        todo = [(splits.split(n), None) for n in settings.splits]
+    rows = []
+    for sp, values in todo:
+        seen: dict = {}
+        for g in _groups(runs_list, sp.field):
+            label = _group_label(g["cfgs"], sp.field)
+            seen[label] = seen.get(label, 0) + 1
+            label += f" #{seen[label]}" if seen[label] > 1 else ""
+            if values is None and len({k for k in g["keys"] if k is not None}) < 2:
+                continue            # the field is not varied in this group: nothing held out
+            rows += cov.group_rows(label, g["Acl"], g["runs"], g["keys"], cov.PLANES[g["frame"]],
+                                   sp, settings.q, settings.methods, train_values=values)
     return rows
 
 
-def write_coverage(out_dir, q: float = COVERAGE_Q, train_on: tuple | None = None) -> Path:
-    """Write ``coverage.csv`` (columns :data:`hlip_jax.coverage.COLUMNS`) from the chunks
-    (:func:`coverage_rows`: split level ``q`` and ``train_on``)."""
-    from hlip_jax import coverage as cov
+def write_coverage(out_dir, settings=None, train_on: tuple | None = None) -> Path:
+    """Write ``coverage.csv`` (columns :data:`hlip_jax.analysis.coverage.COLUMNS`) from the
+    chunks (:func:`coverage_rows`)."""
+    from hlip_jax.analysis import coverage as cov
     buf = io.StringIO()
     wr = csv.writer(buf, lineterminator="\n")
     wr.writerow(cov.COLUMNS)
-    for r in coverage_rows(out_dir, q, train_on):
+    for r in coverage_rows(out_dir, settings, train_on):
         wr.writerow([_cell(r[c]) for c in cov.COLUMNS])
     p = Path(out_dir) / COVERAGE
     write_atomic(p, buf.getvalue())

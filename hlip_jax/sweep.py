@@ -1,6 +1,6 @@
 """Sweep files: TOML text → validated list of :class:`hlip_jax.config.ScenarioConfig`.
 
-A sweep file (read with :mod:`tomllib`) has five top-level keys::
+A sweep file (read with :mod:`tomllib`) has six top-level keys::
 
     name = "paper"                       # optional; default: the file's stem
     description = "..."                  # optional free text
@@ -29,6 +29,11 @@ A sweep file (read with :mod:`tomllib`) has five top-level keys::
     [[grid.zip]]                         # one more axis: these lists are walked together
     "disturbance.pushes.0.force" = [100.0, 200.0]
     "disturbance.pushes.0.time"  = [5.0, 10.0]
+
+    [analysis]                           # optional: hlip_jax.analysis.settings
+    splits = ["seed", "path", "speed"]   # held-out splits of coverage.csv
+    q = 0.9                              # level of the calibrated sets
+    warmup = 3                           # start-up steps not counted
 
 Grid field names are dotted paths into the scenario: ``seed``, ``duration``, ``plant``,
 ``hlip.*``, ``mpc.*``, ``gain.*``, ``disturbance.*``, ``disturbance.pushes.<i>.*``,
@@ -85,6 +90,8 @@ from typing import Any, Callable
 
 from hlip_jax import config as C
 from hlip_jax import plants
+from hlip_jax.analysis import settings as analysis_settings
+from hlip_jax.analysis.settings import AnalysisConfig
 from hlip_jax.plants.cassie import gaits
 
 __all__ = [
@@ -109,7 +116,7 @@ _NAME_ALLOWED = "letters, digits, spaces and . _ - + = , @ ( ) (no slashes)"
 #: requires them equal across a batch): one value per sweep
 STATIC_FIELDS = C.STATIC_FIELDS
 
-TOP_KEYS = ("name", "description", "base", "paths", "grid")
+TOP_KEYS = ("name", "description", "base", "paths", "grid", "analysis")
 GRID_KEYS = ("product", "zip")
 PATH_RESERVED = ("shape", "name", "overrides")
 # ScenarioConfig fields a sweep file may set in [base] / [paths.overrides]; name and swept are
@@ -425,6 +432,8 @@ class Sweep:
     axes: tuple[Axis, ...]
     total: int                        # scenarios before --limit
     n_scenarios: int                  # scenarios after --limit
+    #: the ``[analysis]`` table (:mod:`hlip_jax.analysis.settings`): splits, methods, q, warm-up
+    analysis: AnalysisConfig
     #: builds the scenarios (a large grid is counted at parse time and built on demand)
     expand: Callable[[], tuple] = dataclasses.field(repr=False, compare=False)
 
@@ -763,6 +772,10 @@ def _expand(doc, text, source, overrides, limit, default_name) -> Sweep:
     desc = doc.get("description", "")
     if not isinstance(desc, str):
         raise SweepError(f"description: expected a string, got {_tname(desc)}")
+    try:
+        analysis = analysis_settings.from_dict(doc.get("analysis"))
+    except ValueError as err:
+        raise SweepError(str(err)) from None
     base, base_path = _base_tables(doc, *overrides)
     entries = _parse_paths(doc, base, base_path)
     axes = _parse_axes(doc.get("grid"))
@@ -789,7 +802,7 @@ def _expand(doc, text, source, overrides, limit, default_name) -> Sweep:
     _check_static_scenarios(checked)
     return Sweep(name=name, description=desc, source=source, text=text,
                  paths=tuple(e.name for e in entries), axes=axes, total=total,
-                 n_scenarios=stop, expand=expand)
+                 n_scenarios=stop, analysis=analysis, expand=expand)
 
 
 def _base_tables(doc: dict, plant, duration, physics=None) -> tuple[dict, dict]:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats as st
 
-from hlip_jax.stats import clopper_pearson, rate_text
+from hlip_jax.analysis.stats import clopper_pearson, rate_text
 
 
 def test_ends_match_closed_forms():
