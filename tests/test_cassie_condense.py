@@ -100,15 +100,14 @@ def test_deflated_solve_keeps_float32_close_to_float64(cassie, terms_fn, contact
     """The deflated float32 condensation (what a sweep with it runs) against float64 at the
     same state: q̈ and λ within 1e-4 of their largest entries (measured ≤ 3.2e-5: float32
     round-off through one Cholesky factorisation of the deflated, well-conditioned matrix).
-    The eigen solve in float32 inverts round-off along N: its λ is off by more than the
-    largest true force (measured 5-100 times it at these states)."""
+    How far the eigen solve's float32 λ is off depends on the processor's round-off (5-100
+    times the largest true force on one machine, 1e-4 to 2e-3 of it on another), so it is not
+    asserted."""
     terms = _closed_state_terms(cassie, terms_fn, 3)
     ref = _condensed(cassie, terms, contact, "eigen", jnp.float64)
     f32 = _condensed(cassie, terms, contact, "deflated", jnp.float32)
     for k in ref:
         np.testing.assert_allclose(f32[k], ref[k], atol=1e-4 * np.abs(ref[k]).max(), err_msg=k)
-    eig32 = _condensed(cassie, terms, contact, "eigen", jnp.float32)["lam_tau"]
-    assert np.abs(eig32 - ref["lam_tau"]).max() > np.abs(ref["lam_tau"]).max()
 
 
 def test_unknown_solve_is_refused(cassie, terms_fn):

@@ -632,16 +632,18 @@ def test_mistakes_on_a_results_directory(args, frag, tmp_path, tiny_sweep, capsy
 
 def test_coverage_command(tmp_path, tiny_sweep, capsys, fake_loop):
     """`hlip-sweep coverage DIR` rewrites coverage.csv with the asked split and level; bad
-    levels, malformed or unknown --train-on fields exit 2 with one line naming the option."""
+    levels, splits and warm-ups, malformed or unknown --train-on fields exit 2 with one line
+    naming the option."""
     out = tmp_path / "o"
     _run_ok(capsys, tiny_sweep, out)
     code, text, _ = cli(capsys, "coverage", out, "--train-on", "path=circle", "--q", "0.8")
     assert code == 0 and "coverage:" in text
     rows = list(csv.DictReader((out / "coverage.csv").open()))
     assert rows and all(r["split"] == "path in ['circle']" for r in rows)
-    assert {float(r["q"]) for r in rows if r["w_method"] == "quantile"} == {0.8}
+    assert {float(r["q"]) for r in rows if r["w_method"] == "conformal_step"} == {0.8}
     for args, field in ((["--q", "1.0"], "--q"), (["--train-on", "path"], "--train-on"),
-                        (["--train-on", "nofield=1"], "nofield")):
+                        (["--train-on", "nofield=1"], "nofield"), (["--split", "time"], "--split"),
+                        (["--warmup", "-2"], "--warmup")):
         code, _, err = cli(capsys, "coverage", out, *args)
         assert code == 2 and field in err and "Traceback" not in err
     code, _, err = cli(capsys, "coverage", tmp_path / "missing")
@@ -678,9 +680,9 @@ def test_wbox_prints_sweep_lines_of_the_w_box(tmp_path, capsys):
             ("b", "lateral", "-0.001 -0.001 -0.001", "0.002 0.003 0.03")]
     with open(d / "coverage.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["group", "plane", "w_method", "state", "w_lo", "w_hi"])
+        w.writerow(["group", "plane", "w_method", "level", "state", "w_lo", "w_hi"])
         for g, p, lo, hi in rows:
-            w.writerow([g, p, "box", "[c, p, v]", lo, hi])
+            w.writerow([g, p, "box", "run", "[c, p, v]", lo, hi])
     code, out, _ = cli(capsys, "wbox", d)
     assert code == 0
     mpc = tomllib.loads(out)["base"]["mpc"]

@@ -131,7 +131,7 @@ def test_tube_keeps_the_com_out_of_every_disc_on_the_hlip_plant():
 
 
 def _cov_row(group, plane, lo, hi, method="box", state="[c, p, v]"):
-    return {"group": group, "plane": plane, "w_method": method, "state": state,
+    return {"group": group, "plane": plane, "w_method": method, "state": state, "level": "run",
             "w_lo": " ".join(map(str, lo)), "w_hi": " ".join(map(str, hi))}
 
 
@@ -141,14 +141,14 @@ def test_w_from_coverage_encloses_the_chosen_groups_symmetrically():
             _cov_row("a", "lateral", (-0.03, -0.02, -0.2), (0.01, 0.04, 0.05)),
             _cov_row("b", "sagittal", (-0.005, -0.07, -0.01), (0.004, 0.06, 0.12)),
             _cov_row("b", "lateral", (-0.001, -0.001, -0.001), (0.002, 0.003, 0.3)),
-            _cov_row("a", "sagittal", (-9, -9, -9), (9, 9, 9), method="quantile"),
-            _cov_row("a", "lateral", (-9, -9, -9), (9, 9, 9), method="quantile")]
+            _cov_row("a", "sagittal", (-9, -9, -9), (9, 9, 9), method="conformal_step"),
+            _cov_row("a", "lateral", (-9, -9, -9), (9, 9, 9), method="conformal_step")]
     frame, w, groups = robust.w_from_coverage(rows)
     assert frame == "heading" and groups == ["a", "b"]
     np.testing.assert_array_equal(w, [[0.02, 0.07, 0.12], [0.03, 0.04, 0.3]])
     frame, w, _ = robust.w_from_coverage(rows, "box", ["b"])
     np.testing.assert_array_equal(w, [[0.005, 0.07, 0.12], [0.002, 0.003, 0.3]])
-    _, w, _ = robust.w_from_coverage(rows, "quantile")
+    _, w, _ = robust.w_from_coverage(rows, "conformal_step")
     np.testing.assert_array_equal(w, np.full((2, 3), 9.0))
     world = [_cov_row("w", "world x", (-1, -1, -1), (1, 1, 1)), _cov_row("w", "world y", (-2, 0, 0), (0, 0, 3))]
     frame, w, _ = robust.w_from_coverage(world)
@@ -158,7 +158,7 @@ def test_w_from_coverage_encloses_the_chosen_groups_symmetrically():
 
 @pytest.mark.parametrize("rows,kwargs,match", [
     ([_cov_row("a", "sagittal", (0, 0, 0), (1, 1, 1))], {"groups": ["z"]}, "'z' is not in coverage.csv; allowed: a"),
-    ([_cov_row("a", "sagittal", (0, 0, 0), (1, 1, 1))], {"method": "quantile"}, "no coverage.csv rows"),
+    ([_cov_row("a", "sagittal", (0, 0, 0), (1, 1, 1))], {"method": "conformal_step"}, "no coverage.csv rows"),
     ([_cov_row("a", "sagittal", (0, 0, 0), (1, 1, 1))], {}, "has no rows"),
     ([_cov_row("a", "sagittal", (0, 0, 0), (1, 1, 1)), _cov_row("b", "world x", (0, 0, 0), (1, 1, 1))], {},
      "frames"),

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from hlip_jax import rollout, steplog
+from hlip_jax.analysis import errors
 from hlip_jax.config import (DisturbanceConfig, ObstacleConfig, PathConfig, PushConfig,
                              ScenarioConfig)
 
@@ -286,7 +287,7 @@ def test_summary_coverage_uses_the_modes_error_system(run, name):
     d = log._asdict()
     m = metrics.scenario_metrics(d, i)
     assert m["cov_x_outer"] == 1.0 and m["cov_y_outer"] == 1.0
-    assert metrics.error_model(d, i)[3] == slice(0, 3)
+    assert errors.error_model(d, i)[3] == slice(0, 3)
     as_tube = metrics.scenario_metrics(dict(d, anchor=np.zeros_like(d["anchor"])), i)
     for plane in "xy":
         assert as_tube[f"e_size_{plane}"] > 3 * m[f"e_size_{plane}"], (plane, as_tube, m)

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from hlip_jax import hlip, metrics, runner, steplog, store, sweep
+from hlip_jax.analysis import errors
 
 TINY = """
 name = "tiny"
@@ -149,12 +150,12 @@ def test_run_writes_manifest_chunks_summary(tmp_path):
 def test_error_model_state_size():
     sw = _tiny()
     log = fake_simulate([sw.scenarios[0], sw.scenarios[4]])._asdict()
-    A, B, K, sl = metrics.error_model(log, 0)
+    A, B, K, sl = errors.error_model(log, 0)
     assert A.shape == (3, 3) and K.shape == (2, 3) and sl == slice(0, 3)
     # deadbeat on [c, p, v]: (A + BK)^3 = 0 (Ackermann).  The gains come from JAX in float32
     # (x64 off here): entries of A are O(10), so 1e-4 absolute covers the float32 rounding.
     np.testing.assert_allclose(np.linalg.matrix_power(A + np.outer(B, K[0]), 3), 0, atol=1e-4)
-    A, B, K, sl = metrics.error_model(log, 1)
+    A, B, K, sl = errors.error_model(log, 1)
     assert A.shape == (2, 2) and K.shape == (2, 2) and sl == slice(1, 3)
     np.testing.assert_allclose(np.linalg.matrix_power(A + np.outer(B, K[0]), 2), 0, atol=1e-4)
 
@@ -385,11 +386,11 @@ def test_coverage_in_the_heading_frame_survives_turning_round():
     du = np.stack([a * np.cos(th) - b * np.sin(th), a * np.sin(th) + b * np.cos(th)], axis=1)
     _rerun_with_placement(log, du)
     log["ref_heading"][0] = th
-    assert metrics.analysis_frame(log, 0) == "heading"
+    assert errors.analysis_frame(log, 0) == "heading"
     m = metrics.scenario_metrics(log, 0)
     world = {k: v.copy() for k, v in log.items()}
     world["K_gain"][0, 1] += 1e-9
-    assert metrics.analysis_frame(world, 0) == "world"
+    assert errors.analysis_frame(world, 0) == "world"
     mw = metrics.scenario_metrics(world, 0)
     assert m["cov_x_heldout"] >= 0.9 and m["cov_y_heldout"] >= 0.9
     assert mw["cov_x_heldout"] < 0.2
