@@ -9,9 +9,11 @@ Prints two tables:
 * which robots walked, per path × peak speed: walked / runs with the exact 95 % Clopper–Pearson
   interval (:func:`hlip_jax.analysis.stats.clopper_pearson`), the median RMS COM distance to the path
   (``rms_track_err``) of the walkers, and the range of steps at which the others fell;
-* the across-run coverage of ``coverage.csv`` per (path, plane, W method): training / test runs
-  (with how many of them fell), test samples, coverage and its interval, E's half-extent along
-  the COM position c and the largest test |e_c| (both in metres).
+* one headline line per split (:func:`headline`), then per split the run-level rows of
+  ``coverage.csv`` (:func:`coverage_table`): training / test runs (with their falls), runs
+  covered with the Clopper–Pearson interval over runs, steps covered with the run-cluster
+  bootstrap interval, E's half-width along the COM position c beside the q-quantile and the
+  maximum of the test runs' largest |e_c| (metres).
 """
 
 from __future__ import annotations
@@ -54,20 +56,67 @@ def _walked_cell(rows: list[dict]) -> str:
     return text
 
 
-def coverage_table(path: pathlib.Path) -> list[str]:
-    """The rows of ``coverage.csv`` at ``path``."""
-    out = ["| path | plane | W | train (fell) / test (fell) runs | test samples | coverage | "
-           "95 % interval | E half-extent in c [m] | largest test \\|e_c\\| [m] |",
-           "|---|---|---|---|---:|---:|---|---:|---:|"]
+def _read(path: pathlib.Path) -> list[dict]:
     with open(path, newline="") as f:
-        for r in csv.DictReader(f):
-            w = "box" if r["w_method"] == "box" else f"quantile q={float(r['q']):g}"
-            out.append(
-                f"| {r['group']} | {r['plane']} | {w} | {r['train_runs']} ({r['train_fell']}) / "
-                f"{r['test_runs']} ({r['test_fell']}) | {r['test_samples']} | "
-                f"{float(r['coverage']):.3f} | "
-                f"[{float(r['ci_low']):.3f}, {float(r['ci_high']):.3f}] | "
-                f"{float(r['e_c_max']):.2f} | {float(r['err_c_max']):.2f} |")
+        return list(csv.DictReader(f))
+
+
+def _f(v: str, nd: int) -> str:
+    return "–" if v in ("", "nan") else f"{float(v):.{nd}f}"
+
+
+def _ci(r: dict) -> str:
+    if r["coverage"] in ("", "nan"):
+        return "– (" + r["note"] + ")"
+    return (f"{r['covered']}/{r['test_samples']} = {float(r['coverage']):.3f} "
+            f"[{float(r['ci_low']):.3f}, {float(r['ci_high']):.3f}]")
+
+
+W_NAMES = {"box": "mRPI, box W", "hull": "mRPI, hull W", "conformal_step": "mRPI, step q-box",
+           "conformal_run": "run-calibrated E_q"}
+
+
+def coverage_table(path: pathlib.Path, split: str) -> list[str]:
+    """The run-level rows of ``coverage.csv`` at ``path`` for one split, with the step-level
+    coverage beside them and E's half-width along c against the test runs' largest |e_c|."""
+    rows = _read(path)
+    steps = {(r["group"], r["plane"], r["w_method"]): r for r in rows
+             if r["level"] == "step" and r["split"] == split}
+    out = ["| group | plane | E | train (fell) / test (fell) runs | runs covered [95 % CI] | "
+           "steps covered [95 % CI, runs resampled] | E along c / q-quantile / largest test "
+           "\\|e_c\\| [m] | E along c ÷ largest |",
+           "|---|---|---|---|---|---|---|---:|"]
+    for r in rows:
+        if r["level"] != "run" or r["split"] != split:
+            continue
+        st = steps[(r["group"], r["plane"], r["w_method"])]
+        ratio = ("–" if r["e_half_c"] in ("", "nan") else
+                 f"{float(r['e_half_c']) / float(r['err_max_c']):.1f}")
+        out.append(
+            f"| {r['group']} | {r['plane']} | {W_NAMES[r['w_method']]} | {r['train_runs']} "
+            f"({r['train_fell']}) / {r['test_runs']} ({r['test_fell']}) | {_ci(r)} | {_ci(st)} | "
+            f"{_f(r['e_half_c'], 2)} / {_f(r['err_q_c'], 2)} / {_f(r['err_max_c'], 2)} | {ratio} |")
+    return out
+
+
+def headline(path: pathlib.Path, q: float = 0.9) -> list[str]:
+    """One line per split: the range of the run-calibrated set's run-level coverage, how many
+    rows lie in [q − 0.05, q + 0.08], and the range of E_q's c half-width over the largest
+    held-out |e_c|; then the same ratio for the box W's mRPI set."""
+    rows = [r for r in _read(path) if r["level"] == "run" and r["coverage"] not in ("", "nan")]
+    out = []
+    for split in dict.fromkeys(r["split"] for r in rows):
+        for m in ("conformal_run", "box"):
+            sel = [r for r in rows if r["split"] == split and r["w_method"] == m]
+            if not sel:
+                continue
+            cov = [float(r["coverage"]) for r in sel]
+            ratio = [float(r["e_half_c"]) / float(r["err_max_c"]) for r in sel]
+            inside = sum(q - 0.05 <= c <= q + 0.08 for c in cov)
+            out.append(f"- split {split}, {W_NAMES[m]}: run-level coverage {min(cov):.3f}–"
+                       f"{max(cov):.3f} ({inside} of {len(sel)} rows in [{q - 0.05:.2f}, "
+                       f"{q + 0.08:.2f}]); E along c ÷ largest held-out |e_c| "
+                       f"{min(ratio):.1f}–{max(ratio):.1f}")
     return out
 
 
@@ -76,7 +125,9 @@ def main(argv=None) -> None:
     ap.add_argument("results", type=pathlib.Path, help="results directory of a coverage study")
     a = ap.parse_args(argv)
     lines = walked_table(store.read_summary(a.results)) + [""]
-    lines += coverage_table(a.results / "coverage.csv")
+    lines += headline(a.results / "coverage.csv") + [""]
+    for split in dict.fromkeys(r["split"] for r in _read(a.results / "coverage.csv")):
+        lines += [f"Split: {split}", ""] + coverage_table(a.results / "coverage.csv", split) + [""]
     print("\n".join(lines))
 
 

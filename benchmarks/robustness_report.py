@@ -28,10 +28,9 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hlip_jax import coverage as cov  # noqa: E402
 from hlip_jax import store, sweep  # noqa: E402
+from hlip_jax.analysis import coverage as cov, masks, runs, splits  # noqa: E402
 from hlip_jax.config import RealismConfig  # noqa: E402
-from hlip_jax.metrics import W_MIN_HALFWIDTH  # noqa: E402
 from hlip_jax.analysis.stats import clopper_pearson, rate_text  # noqa: E402
 
 IDEAL = RealismConfig()
@@ -49,7 +48,7 @@ def level_label(cfg) -> str:
 
 
 def collect(out_dir):
-    """{level: {"rows": summary rows, "runs": RunSamples, "seeds": seeds, "Acl": A + BK}} in
+    """{level: {"rows": summary rows, "runs": RunErrors, "seeds": seeds, "Acl": A + BK}} in
     the sweep's order of first appearance."""
     configs = [sweep.config_from_dict(d) for d in store.read_manifest(out_dir)["configs"]]
     summary = {int(r["index"]): r for r in store.read_summary(out_dir)}
@@ -61,7 +60,8 @@ def collect(out_dir):
             lv = levels.setdefault(level_label(cfg), {"rows": [], "runs": [], "seeds": [], "Acl": None})
             lv["rows"].append(summary[int(i)])
             if store.steplog.alive(z["valid"][j]).any():
-                _, Acl, frame, run = store._run_samples(z, j, cfg)
+                pushes = [(p.time, p.duration) for p in cfg.disturbance.pushes if p.force > 0]
+                Acl, frame, run = runs.run_errors(z, j, pushes, masks.WARMUP)
                 lv["Acl"] = Acl
                 lv["runs"].append(run)
                 lv["seeds"].append(cfg.swept.get("seed", int(i)))
@@ -70,14 +70,15 @@ def collect(out_dir):
 
 
 def e_extent(lv) -> dict:
-    """{plane: (E's half-extent on c [m], across-seed coverage, its CI)} of a level (box W)."""
+    """{plane: (E's half-width on c [m], run-level coverage over held-out seeds, its CI)} of a
+    level (box W's mRPI set)."""
     out = {}
     if lv["Acl"] is None or len(set(lv["seeds"])) < 2:
         return out
     for r in cov.group_rows("", lv["Acl"], lv["runs"], lv["seeds"], ("sagittal", "lateral"),
-                            min_halfwidth=W_MIN_HALFWIDTH):
-        if r["w_method"] == "box":
-            out[r["plane"]] = (r["e_c_max"], r["coverage"], r["ci_low"], r["ci_high"])
+                            splits.split("seed"), q=0.9, methods=("box",)):
+        if r["level"] == "run":
+            out[r["plane"]] = (r["e_half_c"], r["coverage"], r["ci_low"], r["ci_high"])
     return out
 
 

@@ -288,7 +288,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="held-out splits: seed, path, speed (default: the sweep's, all three)")
     cv.add_argument("--warmup", type=int, default=None, metavar="K",
                     help="errors k < K are the start's transient, not counted (default: the "
-                    "sweep's, 3)")
+                    "sweep's, 4)")
     cv.add_argument("--train-on", default=None, metavar="FIELD=V1,V2",
                     help="instead of the splits: W from the runs whose swept FIELD (a grid "
                     "field or 'path') is one of the values, coverage on the others")

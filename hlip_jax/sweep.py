@@ -33,7 +33,7 @@ A sweep file (read with :mod:`tomllib`) has six top-level keys::
     [analysis]                           # optional: hlip_jax.analysis.settings
     splits = ["seed", "path", "speed"]   # held-out splits of coverage.csv
     q = 0.9                              # level of the calibrated sets
-    warmup = 3                           # start-up steps not counted
+    warmup = 4                           # start-up steps not counted
 
 Grid field names are dotted paths into the scenario: ``seed``, ``duration``, ``plant``,
 ``hlip.*``, ``mpc.*``, ``gain.*``, ``disturbance.*``, ``disturbance.pushes.<i>.*``,

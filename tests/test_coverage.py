@@ -63,7 +63,7 @@ def _csv(out):
         return head, [dict(zip(head, r)) for r in rd]
 
 
-def _run_errors(out, warmup=3):
+def _run_errors(out, warmup=4):
     """{scenario index: (config, RunErrors)} of a results directory (the pipeline's parts)."""
     man = store.read_manifest(out)
     found = {}
@@ -80,7 +80,7 @@ def test_coverage_csv_schema_and_counts(hlip_run):
     """Columns as documented; per (group, plane, method) a run row and a step row; the seed
     split alternates the seeds (1, 3, 5 train; 2, 4, 6 test); the run row counts test runs, the
     step row the kept test errors, which on the unpushed line is summary.csv's step count minus
-    the warm-up of 3 (an independent count); each interval contains its estimate."""
+    the warm-up of 4 (an independent count); each interval contains its estimate."""
     head, rows = _csv(hlip_run)
     assert tuple(head) == cov.COLUMNS
     man = store.read_manifest(hlip_run)
@@ -101,7 +101,7 @@ def test_coverage_csv_schema_and_counts(hlip_run):
         if r["level"] == "run":
             assert r["test_samples"] == "3"
         elif r["group"] == "line":
-            n_test = sum(steps[i] - 3 for i, cf in enumerate(man["configs"])
+            n_test = sum(steps[i] - 4 for i, cf in enumerate(man["configs"])
                          if cf["swept"]["path"] == "line" and cf["swept"]["seed"] % 2 == 0)
             assert int(r["test_samples"]) == n_test
         assert int(r["covered"]) == round(c * int(r["test_samples"]))
@@ -200,7 +200,7 @@ HELD, REPLICATES = 200, 5
 
 @pytest.fixture(scope="module")
 def many_runs(tmp_path_factory):
-    """5 x 400 seeds of the noisy line (6 s, 12 kept steps each): per replicate 200 training
+    """5 x 400 seeds of the noisy line (6 s, 11 kept steps each): per replicate 200 training
     and 200 held-out runs, the replicates disjoint."""
     n = 2 * HELD * REPLICATES
     text = (_head(SWEEP).replace("duration = 8.0", "duration = 6.0") + '[[paths]]\nshape = "line"\n'

@@ -12,8 +12,9 @@ mean:
     the same caveat as ``path``.
 
 The distinct values of the field are sorted and assigned alternately, the 1st, 3rd, 5th … to
-training and the others to test (:func:`interleave`): deterministic, about half on each side,
-and held-out speeds lie between trained ones (interpolation, not extrapolation).  A value
+training and the others to test (:func:`interleave`): deterministic and about half on each
+side; with an even number of values the largest is held out, so a held-out speed lies between
+trained ones or, for the largest, beyond them.  A value
 split (:func:`by_values`, the CLI's ``--train-on FIELD=V1,V2``) trains on the listed values.
 """
 
@@ -38,7 +39,7 @@ SPLITS = {s.name: s for s in (
     Split("path", "path", "test runs walk other paths: exchangeable only if the paths were "
           "drawn from one family (here: an out-of-distribution check)"),
     Split("speed", "path.peak_speed", "test runs walk other speeds: exchangeable only if the "
-          "speeds were drawn from one distribution (here: interpolation between trained "
+          "speeds were drawn from one distribution (here: between and beyond the trained "
           "speeds)"),
 )}
 

@@ -52,13 +52,20 @@ def cluster_bootstrap(hits: Sequence[np.ndarray], level: float = 0.95, n_boot: i
     with replacement (whole runs, never single steps, so the serial correlation inside a run
     stays in every resample), and the interval is the (α/2, 1 − α/2) percentiles of the
     resampled statistic.  Clusters without trials are dropped; (nan, nan) when none is left.
-    The resampling is seeded (``seed``), so a results directory's figures are reproducible."""
+    The resampling is seeded (``seed``), so a results directory's figures are reproducible.
+    When every trial is a success (or every one a failure) no resample can differ and the
+    percentile interval would collapse to a point; the interval is then Clopper–Pearson over
+    the clusters, each counted as one trial (every step of a run covered is at least as likely
+    as the run being covered), e.g. [(α/2)^(1/m), 1] for m clusters without a failure."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"level: expected a number in (0, 1), got {level!r}")
     k = np.array([np.sum(h) for h in hits if np.size(h)], np.float64)
     n = np.array([np.size(h) for h in hits if np.size(h)], np.float64)
     if n.size == 0:
         return math.nan, math.nan
+    if k.sum() in (0.0, n.sum()):
+        m = n.size
+        return clopper_pearson(m if k.sum() else 0, m, level)
     idx = np.random.default_rng(seed).integers(0, n.size, size=(n_boot, n.size))
     frac = k[idx].sum(axis=1) / n[idx].sum(axis=1)
     a = 1.0 - level
