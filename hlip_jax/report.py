@@ -309,9 +309,49 @@ ACROSS_NOTE = (
     "pre-push box), which are reported apart and never enter W. From coverage.csv.")
 
 
+def _projections(dim: int) -> list[tuple[int, int]]:
+    return [(0, 1), (1, 2), (0, 2)] if dim == 3 else [(0, 1)]
+
+
+def fig_coverage_sets(planes, fitted, path: Path, title: str) -> None:
+    """One row per plane, one panel per 2-D projection of the state: the test runs' kept
+    errors (points), the box W's mRPI set (light) and the run-calibrated E_q (dark outline)."""
+    plt = _plt()
+    dims = _projections(fitted[0][0].dim)
+    fig, axes = plt.subplots(len(fitted), len(dims), figsize=(3.6 * len(dims), 3.2 * len(fitted)),
+                             squeeze=False)
+    for (E_box, E_q, e), row, plane in zip(fitted, axes, planes):
+        lab = set_figures.STATE_LABELS[E_box.dim]
+        for ax, (a, b) in zip(row, dims):
+            set_figures.plot_set_2d(E_box, None, dims=(a, b), ax=ax, face_color="tab:blue",
+                                    alpha=0.12)
+            if E_q is not None:
+                set_figures.plot_set_2d(E_q, None, dims=(a, b), ax=ax, face_color="tab:orange",
+                                        alpha=0.35)
+            ax.scatter(e[:, a], e[:, b], s=2, c="k", alpha=0.4)
+            ax.set_xlabel(lab[a]), ax.set_ylabel(lab[b])
+            ax.set_title(f"{plane}", fontsize=9)
+    fig.suptitle(title + " — held-out errors, mRPI of box W (blue), run-calibrated E_q (orange)",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def _coverage_figures(doc, out: Path, split: str) -> None:
+    """The figure of :func:`fig_coverage_sets` for every group of ``split``."""
+    from hlip_jax.analysis import coverage as cov
+    fig_dir = out / "figures"
+    fig_dir.mkdir(exist_ok=True)
+    for i, (label, frame, fitted) in enumerate(store.coverage_sets(out, split)):
+        fn = f"coverage_{split}_{i}.png"
+        fig_coverage_sets(cov.PLANES[frame], fitted, fig_dir / fn, f"{label} ({split} split)")
+        doc.img(f"figures/{fn}", f"held-out errors of {label} against E")
+
+
 def across_run_section(doc, out: Path) -> None:
     """The coverage section from ``coverage.csv`` (written first if absent, e.g. a results
-    directory from before the file existed)."""
+    directory from before the file existed), with a figure per group of its first split."""
     if not (out / store.COVERAGE).is_file():
         store.write_coverage(out)
     doc.h(2, "Coverage over held-out runs")
@@ -322,6 +362,7 @@ def across_run_section(doc, out: Path) -> None:
               "held-out statistic. Sweep seeds (the [analysis] table's splits) to get one.")
         return
     doc.table(ACROSS_HEAD, across_run_rows(rows))
+    _coverage_figures(doc, out, next(r["split"] for r in rows if r["level"] == "run"))
 
 
 # --------------------------------------------------------------------------------------------

@@ -292,6 +292,7 @@ def _pad_facets(N, b, fill):
     if pad == 0:
         return N, b
     xp = jnp if isinstance(N, jax.Array) or isinstance(b, jax.Array) else np
+    N, b = xp.asarray(N), xp.asarray(b)     # JAX arrays take JAX's float width (no float64 ask)
     return (xp.concatenate([N, xp.zeros((pad, N.shape[1]), N.dtype)]),
             xp.concatenate([b, xp.full((pad,), fill, b.dtype)]))
 
@@ -616,7 +617,10 @@ def _hpoly_vertices(N: np.ndarray, b: np.ndarray, interior: np.ndarray) -> np.nd
 
 
 def vertices(S) -> np.ndarray:
-    """Vertices (k, n) of a Box, Zonotope, Hull, TemplatePolytope or MRPI (outer set)."""
+    """Vertices (k, n) of a Box, Zonotope, Hull, TemplatePolytope, MRPI (outer set) or Scaled."""
+    if isinstance(S, Scaled):
+        c = _facets(S.base)[2]
+        return c + S.s * (vertices(S.base) - c)
     if isinstance(S, MRPI):
         S = S.outer
     if isinstance(S, Box):

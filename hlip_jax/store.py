@@ -552,6 +552,24 @@ def coverage_rows(out_dir, settings=None, train_on: tuple | None = None) -> list
     return rows
 
 
+def coverage_sets(out_dir, split: str = "seed", settings=None) -> list[tuple]:
+    """(group label, frame, :func:`hlip_jax.analysis.coverage.fitted_sets`) of every group in
+    which ``split``'s field takes two or more values: the sets the report draws."""
+    from hlip_jax.analysis import coverage as cov, splits
+    settings = analysis_settings(out_dir) if settings is None else settings
+    sp = splits.split(split)
+    out = []
+    for g in _groups(list(_analysed_runs(out_dir, settings.warmup)), sp.field):
+        if len({k for k in g["keys"] if k is not None}) < 2:
+            continue
+        try:
+            sets_ = cov.fitted_sets(g["Acl"], g["runs"], g["keys"], settings.q)
+        except ValueError:          # no kept disturbance, an unstable gain: nothing to draw
+            continue
+        out.append((_group_label(g["cfgs"], sp.field), g["frame"], sets_))
+    return out
+
+
 def write_coverage(out_dir, settings=None, train_on: tuple | None = None) -> Path:
     """Write ``coverage.csv`` (columns :data:`hlip_jax.analysis.coverage.COLUMNS`) from the
     chunks (:func:`coverage_rows`)."""

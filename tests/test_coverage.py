@@ -151,6 +151,10 @@ def test_report_leads_with_the_run_level_table(hlip_run):
     for h in report.ACROSS_HEAD:
         assert h in text
     assert "run-calibrated q=0.9" in text and "What is guaranteed" in text
+    # one figure of the held-out errors against E per group of the first split (seed)
+    for i in range(2):
+        f = hlip_run / "figures" / f"coverage_seed_{i}.png"
+        assert f.is_file() and f.stat().st_size > 5000 and f"figures/coverage_seed_{i}.png" in text
 
 
 def test_one_run_per_path_says_there_is_no_held_out_statistic(tmp_path):

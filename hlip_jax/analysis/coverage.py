@@ -133,6 +133,26 @@ def plane_rows(A_cl, train, test, p: int, name: str, q: float) -> list[dict]:
     return [dict(common, level="run", **run), dict(common, level="step", **step)]
 
 
+def fitted_sets(A_cl, runs: Sequence[RunErrors], keys: Sequence, q: float):
+    """For the report's figures: per plane (E of the box W, E_q run-calibrated or None when it
+    cannot be formed, the kept errors of the test runs (k, n)), the runs split as
+    :func:`group_rows` splits them (alternate values of ``keys``)."""
+    tr, te = splits.interleave(keys)
+    train, test = [runs[i] for i in tr], [runs[i] for i in te]
+    walked = [r for r in train if not r.fell]
+    out = []
+    for p in range(A_cl.shape[0]):
+        d = np.concatenate([r.kept_d(p) for r in walked])
+        e_tr, fell = [r.kept_e(p) for r in train], [r.fell for r in train]
+        E_box = estimators.fit("box", A_cl[p], d, e_tr, fell, q)[1]
+        try:
+            E_q = estimators.fit("conformal_run", A_cl[p], d, e_tr, fell, q)[1]
+        except ValueError:
+            E_q = None
+        out.append((E_box, E_q, np.concatenate([r.kept_e(p) for r in test])))
+    return out
+
+
 def _empty(base: dict, planes, why: str) -> list[dict]:
     return [dict({c: math.nan for c in COLUMNS}, **base, plane=pl, w_method="", level="run",
                  note=why) for pl in planes]
