@@ -83,3 +83,21 @@ def hlip_rows(A3: np.ndarray, B3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     [c, p, v] (the rows and columns of p and v)."""
     A3, B3 = np.asarray(A3), np.asarray(B3)
     return A3[1:, 1:], B3[1:]
+
+
+def residuals(log: dict, scenarios: Sequence[int], model: S2SFit | None, skip: int = 4,
+              hlip: tuple | None = None) -> np.ndarray:
+    """Residuals Y − X θ (n, 2 planes, [p, v]) of the step pairs of ``scenarios``
+    (:func:`pairs`) under ``model`` (a fit), or under the H-LIP's ``hlip`` = (A (2, 2), B (2,))
+    (no stance offsets) when ``model`` is None: held-out runs measure how much of w a fit
+    explains [m; m/s]."""
+    X, Y = pairs(log, list(scenarios), skip)
+    out = np.empty_like(Y)
+    for j in range(2):
+        if model is None:
+            A, B = hlip
+            coef = np.vstack([A.T, B[None], np.zeros((2, 2))])
+        else:
+            coef = np.vstack([model.A[j].T, model.B[j][None], model.offset[j]])
+        out[:, j] = Y[:, j] - X[:, j] @ coef
+    return out

@@ -36,6 +36,19 @@ def test_fit_recovers_the_plants_own_map_exactly(float64):
     assert np.abs(f.B[1, 1] - B_h[1]) > 0.1 and np.abs(f.A[0] - A_h).max() > 0.05
 
 
+def test_held_out_residuals_vanish_under_the_fit_and_not_under_the_hlip(float64):
+    """The mismatched plant fitted on two seeds: a third seed's residuals under the fit are
+    rounding (1e-8), under the planner's H-LIP they are the mismatch (above 1e-3 m/s RMS)."""
+    dist = DisturbanceConfig(step_error=0.05, z0=0.95, t_ssp=0.33, t_dsp=0.08)
+    _, log = _log(dist)
+    model = s2s_fit.fit(log, [0, 1])
+    r_fit = s2s_fit.residuals(log, [2], model)
+    r_h = s2s_fit.residuals(log, [2], None, hlip=s2s_fit.hlip_rows(log["A"][0], log["B"][0]))
+    assert r_fit.shape == r_h.shape and r_fit.shape[0] > 20
+    assert np.abs(r_fit).max() < 1e-8
+    assert np.sqrt(np.mean(r_h[:, :, 1] ** 2)) > 1e-3
+
+
 def test_fit_with_additive_noise_stays_within_its_sampling_error(float64):
     # uniform S2S noise of half-width 0.01 m / 0.05 m/s on top: least squares is unbiased, so
     # every coefficient lies within 4 of its own standard errors of the truth (σ² from the
