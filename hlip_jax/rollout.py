@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import math
 from typing import NamedTuple, Optional, Sequence
 
@@ -613,6 +614,20 @@ def place(batch, sharding):
     return jax.tree.map(put, batch)
 
 
+_barriers = itertools.count()
+
+
+def _all_processes_arrive() -> None:
+    """Wait (up to an hour) until every process of a ``jax.distributed`` run gets here.  The
+    processes compile their programs separately and can finish minutes apart; the gather that
+    follows uses the CPU collectives (Gloo), whose first use gives the others only 30 s to
+    connect.  The coordination service's barrier has no such limit."""
+    from jax._src import distributed          # the client jax.distributed.initialize started
+    client = distributed.global_state.client
+    if client is not None and jax.process_count() > 1:
+        client.wait_at_barrier(f"hlip_jax_gather_{next(_barriers)}", 3_600_000)
+
+
 def _to_host(a):
     if jax.process_count() > 1:
         from jax.experimental import multihost_utils
@@ -648,6 +663,8 @@ def _simulate_batch(configs, *, n_samples, pad_to, dtype, shapes, devices, keep_
         batch = place(batch, scenario_sharding(devices))
     with jax.default_matmul_precision("highest"):
         out = run(batch, static._replace(progress=progress.active(), keep_ticks=keep_ticks))
+    jax.block_until_ready(out)
+    _all_processes_arrive()
     return host, jax.tree.map(lambda a: _to_host(a)[:S], out)
 
 

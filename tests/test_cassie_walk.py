@@ -306,6 +306,8 @@ def test_init_faces_the_path_heading():
 
 @pytest.fixture(scope="module")
 def short_walk():
+    # the walk compiles the whole controller (about 4 minutes on the 2-core CPU): its tests are
+    # in the slow tier
     """The shipped controller ("paper" preset, model spring damping, passive stance foot)
     walking 16 steps from standing without MPC: in place, 0.5 m/s forward, turning at 30 °/s,
     and forward with step noise (one simulation shared by the tests below)."""
@@ -320,6 +322,7 @@ def short_walk():
     return types.SimpleNamespace(log=log, ticks=ticks, n=n, z0=z0, ts=ts, td=td, k=k)
 
 
+@pytest.mark.slow
 def test_short_walk_on_mjx(short_walk):
     """No fall, finite S2S data, alternating steps; the in-place robot stays within 0.1 m over
     its first 10 steps (no MPC here, and the stepping law's position term is weak, q_c 0.1; the
@@ -382,6 +385,7 @@ def _forward_speeds(walk):
     return speed, speed_hlip
 
 
+@pytest.mark.slow
 def test_forward_speed_follows_the_hlip(short_walk):
     """Over steps 6..16 the forward robot holds the commanded 0.5 m/s within 10 % (the issue's
     speed target; 0.510 m/s measured with q_c 0.1, 0.490 with q_c 0.05) and moves within 15 %

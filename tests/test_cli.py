@@ -20,8 +20,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from hlip_jax import store
 from hlip_jax.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -609,6 +611,41 @@ def test_two_process_distributed_run_equals_one_process(tmp_path):
         assert f.read_bytes() == (tmp_path / "two" / "chunks" / f.name).read_bytes(), f.name
     assert ((tmp_path / "one" / "summary.csv").read_bytes()
             == (tmp_path / "two" / "summary.csv").read_bytes())
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_two_process_distributed_cassie_equals_one_process_of_two_devices(tmp_path):
+    """The Cassie plant under `--distributed`, two processes of one CPU device each, against
+    one process of two CPU devices (the same two scenarios per device): the same statuses and
+    the same step logs, bit for bit.  Before MJX's model was put on each process's own device
+    (hlip_jax.plants.cassie.model.put), the second process failed to compile the closed loop
+    (its model lived on process 0's device)."""
+    import socket
+    sw = tmp_path / "dist.toml"
+    sw.write_text('[base]\nplant = "cassie"\nduration = 0.6\n[[paths]]\nshape = "line"\n'
+                  '[grid.product]\nseed = [1, 2, 3, 4]\n')
+    one = hs("run", sw, "--out", tmp_path / "one", "--no-report", "--quiet", fake=False,
+             timeout=800, env={"XLA_FLAGS": "--xla_force_host_platform_device_count=2"})
+    assert one.returncode == 0, one.stderr
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COORDINATOR_ADDRESS=f"localhost:{port}",
+               JAX_NUM_PROCESSES="2", MPLBACKEND="Agg",
+               XLA_FLAGS="--xla_force_host_platform_device_count=1")
+    env.pop("HLIP_SWEEP_SIMULATE", None)
+    cmd = [sys.executable, "-m", "hlip_jax.cli", "run", str(sw), "--out", str(tmp_path / "two"),
+           "--no-report", "--quiet", "--distributed"]
+    procs = [subprocess.Popen(cmd, env=dict(env, JAX_PROCESS_ID=str(i)), cwd=ROOT, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE) for i in (0, 1)]
+    for p in procs:
+        _, err = p.communicate(timeout=800)
+        assert p.returncode == 0, err
+    a, b = store.load_log(tmp_path / "one"), store.load_log(tmp_path / "two")
+    assert a["status"].tolist() == b["status"].tolist() == [0, 0, 0, 0]
+    for k in ("x_robot", "u_robot", "e", "valid", "t_plant"):
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
 
 
 def test_distributed_process_id_must_be_an_integer(tmp_path, tiny_sweep, capsys, fake_loop,

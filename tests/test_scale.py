@@ -95,6 +95,7 @@ def _sharded_run(cache):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_sharded_over_four_devices(tmp_path):
     """5 scenarios on 4 (host-platform) devices: padded to 8, 2 per device, each device

@@ -129,6 +129,7 @@ def test_edited_parameters_carry_over(float64):
     _assert_terms(m, mx, qpos, qvel, c.tree)
 
 
+@pytest.mark.slow
 def test_robot_terms_are_the_same_both_ways(float64):
     # every RobotTerms field (Jacobians, J̇q̇, COM, frames) from the dense terms and from MJX's
     c = model.load()

@@ -34,7 +34,7 @@ def load(spring_damping: float = SPRING_DAMPING) -> model.Cassie:
     m = c.mj_model
     for j in dynamics.spring_dofs(c):
         m.dof_damping[j] = spring_damping
-    return dataclasses.replace(c, mj_model=m, mjx_model=mjx.put_model(m, impl=c.mjx_model.impl))
+    return dataclasses.replace(c, mj_model=m, mjx_model=model.put(m, c.mjx_model.impl))
 
 # standing: orientation ω = 8 rad/s, COM height 8, COM xy 4 (well below the ≈ 24 rad/s
 # spring-mass mode of the legs, which the rigid-spring controller model does not see)

@@ -197,14 +197,22 @@ class Cassie:
     tree: tree_terms.Tree        # static topology of the dense smooth terms
 
 
+def put(m: mujoco.MjModel, impl: str):
+    """``mjx.put_model`` on this process's first device.  MJX's own default is
+    ``jax.devices()[0]``, which after ``jax.distributed.initialize`` is process 0's device: in
+    every other process the model would then live on a device it cannot address, and the
+    closed loop could not be compiled there."""
+    return mjx.put_model(m, impl=impl, device=jax.local_devices()[0])
+
+
 def load(path: Optional[str | pathlib.Path] = None, impl: str = "jax") -> Cassie:
-    """Loads ``scene.xml`` (or ``path``) into C MuJoCo and MJX (``mjx.put_model(m, impl)``)."""
+    """Loads ``scene.xml`` (or ``path``) into C MuJoCo and MJX (:func:`put`)."""
     path = pathlib.Path(path) if path is not None else SCENE_XML
     if not path.is_file():
         raise FileNotFoundError(f"path: no MJCF file at {path}")
     m = mujoco.MjModel.from_xml_path(str(path))
     idx = index_map(m)
-    mx = mjx.put_model(m, impl=impl)
+    mx = put(m, impl)
     gear = m.actuator_gear[:, 0].copy()
     loops = np.array(idx.loops)
     tree = tree_terms.tree_of(m)
