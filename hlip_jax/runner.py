@@ -326,9 +326,9 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
         chunk_cfgs = chunk_configs(configs, batch, i)
         try:
             budget = None if max_chunks is None else max_chunks - ran - 1
-            news = (progress.listening(_chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget))
-                    if bar.enabled else contextlib.nullcontext())   # --quiet: nothing compiled in
-            with news:
+            # listened to with or without --quiet, so that the loop runs the same segmented
+            # program either way: the progress output must not change the numbers
+            with progress.listening(_chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget)):
                 log = sim(chunk_cfgs)
         except (ImportError, NotImplementedError) as err:
             plants = sorted({c.plant for c in chunk_cfgs})
