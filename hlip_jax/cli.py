@@ -360,7 +360,9 @@ def cmd_run(args) -> int:
     from hlip_jax import report, runner
     _use_cache(args)               # before anything compiles: JAX reads it at the first compile
     sw = _load(args)
-    out = Path(args.out) if args.out else Path("results") / sw.name
+    if args.out is not None and not args.out.strip():
+        raise UserError("--out: an empty path; give a directory (default: results/<sweep name>)")
+    out = Path(args.out) if args.out is not None else Path("results") / sw.name
     try:
         not_dir = out.exists() and not out.is_dir()
     except OSError as err:      # e.g. a name too long for the file system
@@ -685,7 +687,7 @@ def cmd_list(args) -> int:
             n, desc = "  invalid", str(err)
         except tomllib.TOMLDecodeError as err:  # pragma: no cover - load_sweep wraps it
             n, desc = "  invalid", str(err)
-        print(f"{f.stem:16s} {n}  {desc}")
+        print(sweep.printable(f"{f.stem:16s} {n}  {desc}"))
     return EXIT_OK
 
 
@@ -762,7 +764,8 @@ def main(argv=None) -> int:
 
 def _fail(msg: str, code: int) -> int:
     """Print ``msg`` as the one error line (newlines folded) and return ``code``."""
-    print(f"{PROG}: error: {' '.join(msg.splitlines())}", file=sys.stderr)
+    from hlip_jax.sweep import printable
+    print(f"{PROG}: error: {printable(' '.join(msg.splitlines()))}", file=sys.stderr)
     return code
 
 

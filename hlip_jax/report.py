@@ -763,6 +763,8 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
     """
     out = Path(out_dir)
     man, rows = _read_results(out, heatmap_axes)
+    for name in ("figures", "report.html", "report.md"):
+        store.inside(out, name)
     fig_dir = out / "figures"
     fig_dir.mkdir(exist_ok=True)
     doc = _Doc()

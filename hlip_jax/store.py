@@ -63,7 +63,8 @@ __all__ = [
     "StoreError", "LOG_FIELDS", "SUMMARY_METRICS", "chunk_ranges",
     "write_atomic", "save_npz_atomic", "read_manifest", "load_chunk", "load_log",
     "write_summary", "read_summary", "chunk_files", "write_coverage",
-    "read_coverage", "coverage_rows", "results_lock", "chunk_problem", "check_chunks",
+    "read_coverage", "coverage_rows", "coverage_sets", "analysis_settings",
+    "disturbance_samples", "results_lock", "inside", "chunk_problem", "check_chunks",
 ]
 
 MANIFEST = "manifest.json"
@@ -599,6 +600,17 @@ def read_coverage(out_dir) -> list[dict]:
 # the lock of a run
 
 
+def inside(out, name: str) -> Path:
+    """``out / name``, refused (StoreError) when it is a symbolic link: a run never writes
+    through a link out of its results directory (a link planted as ``.lock`` or
+    ``figures/`` would otherwise have it write over the file or folder it points to)."""
+    p = Path(out) / name
+    if p.is_symlink():
+        raise StoreError(f"{p}: a symbolic link inside the results directory; the run writes "
+                         "only its own files there: remove the link")
+    return p
+
+
 @contextlib.contextmanager
 def results_lock(out: Path):
     """Hold an exclusive lock on the results directory ``out`` (created) while a run writes it.
@@ -609,7 +621,8 @@ def results_lock(out: Path):
     it, or naming ``--out`` if the directory cannot be created."""
     try:
         out.mkdir(parents=True, exist_ok=True)
-        fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o666)
+        inside(out, LOCK)
+        fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
     except OSError as err:
         raise StoreError(f"--out {out}: cannot create the results directory: "
                          f"{err.strerror or err}") from None

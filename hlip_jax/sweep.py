@@ -163,6 +163,13 @@ def path_param_spec(shape: str) -> dict[str, dict]:
 # scalar checks
 
 
+def printable(text: str) -> str:
+    """``text`` with every control character but newline and tab written as an escape
+    (``\\x1b``): a sweep's name, description or keys never reach a terminal as raw control
+    sequences."""
+    return "".join(c if c in "\n\t" or c.isprintable() else repr(c)[1:-1] for c in str(text))
+
+
 def _fmt(v) -> str:
     if isinstance(v, str):
         return repr(v)
@@ -469,7 +476,7 @@ class Sweep:
         lines.append(f"  scenarios: {len(self.paths)} paths x {n_grid} grid points = {self.total}"
                      + (f" (limited to {self.n_scenarios})" if self.n_scenarios != self.total
                         else ""))
-        return "\n".join(lines)
+        return printable("\n".join(lines))
 
 
 def _resolve_field(field: str, where: str) -> list:

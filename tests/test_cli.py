@@ -328,6 +328,29 @@ def test_out_read_only(tmp_path, tiny_sweep, capsys, fake_loop):
     assert "--out" in _one_line_error(code, err)
 
 
+def test_links_in_out_and_an_empty_out_are_refused(tmp_path, tiny_sweep, capsys, fake_loop):
+    """A `.lock` or `figures/` that is a symbolic link out of --out: exit 2 naming it, and the
+    file or folder it points to untouched; `--out ''` exits 2 instead of writing elsewhere."""
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / ".lock").symlink_to(victim)
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--quiet")
+    assert "symbolic link" in _one_line_error(code, err) and ".lock" in err
+    assert victim.read_text() == "keep me"
+    (out / ".lock").unlink()
+    _run_ok(capsys, tiny_sweep, out)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (out / "figures").symlink_to(elsewhere, target_is_directory=True)
+    code, _, err = cli(capsys, "report", out)
+    assert "symbolic link" in _one_line_error(code, err) and "figures" in err
+    assert list(elsewhere.iterdir()) == []
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", "", "--quiet")
+    assert "--out" in _one_line_error(code, err)
+
+
 def test_out_too_long_a_name(tmp_path, tiny_sweep, capsys, fake_loop):
     code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / ("d" * 300), "--quiet")
     assert "--out" in _one_line_error(code, err) and "too long" in err
@@ -808,3 +831,15 @@ def test_bench_variant_flags_take_the_config_choices(capsys):
         assert exc.value.code == 2
         err = capsys.readouterr().err
         assert all(repr(c) in err for c in spec(field)), (field, err)
+
+
+def test_control_characters_never_reach_the_terminal(tmp_path, capsys, fake_loop):
+    """A description and a path name holding an escape sequence: `show` and the one-line
+    error print it escaped (\\x1b), never the raw control character."""
+    p = tmp_path / "esc.toml"
+    p.write_text('description = "red \\u001b[31m text"\n[[paths]]\nshape = "line"\n')
+    code, out, _ = cli(capsys, "show", p)
+    assert code == 0 and "\x1b" not in out and "\\x1b[31m" in out
+    p.write_text('[[paths]]\nshape = "line"\nname = "a\\u001b[2J"\n')
+    code, _, err = cli(capsys, "show", p)
+    assert code == 2 and "\x1b" not in err and "\\x1b" in err
