@@ -455,11 +455,12 @@ _finish_batch = jax.jit(jax.vmap(_finish))
 
 def compiled_loops() -> int:
     """How many compiled closed-loop programs this process holds (whole runs and segments,
-    traced here or loaded by :mod:`hlip_jax.trace_cache`): a sweep whose chunks share their
-    shapes adds one."""
+    traced here, loaded by :mod:`hlip_jax.trace_cache` or compiled ahead beside the start
+    program): a sweep whose chunks share their shapes adds one."""
     loops = [_run_whole, _segment_batch]
     loops += [p for whole, _, segment in _per_mesh.values() for p in (whole, segment)]
-    return sum(f._cache_size() + trace_cache.loaded(f.__name__) for f in loops)
+    return sum(f._cache_size() + trace_cache.loaded(f.__name__)
+               + trace_cache.compiled_ahead(f.__name__) for f in loops)
 
 
 def segment_length(n_steps: int) -> int:

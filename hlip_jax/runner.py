@@ -154,6 +154,8 @@ def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, 
                f"{old.get('batch')}, now {batch})" if old.get("batch") != batch
                else "the coverage setting differs (--no-coverage)"
                if old.get("with_coverage", True) != with_coverage
+               else "the precision differs (JAX_ENABLE_X64)"
+               if old.get("x64", _x64()) != _x64()
                else "the expanded sweep config differs")
         raise store.StoreError(f"refusing to resume {out}: {why}; config hash {chash[:12]} vs "
                          f"{str(old.get('config_hash'))[:12]} in {store.MANIFEST}")
@@ -184,6 +186,7 @@ def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_cover
         "with_coverage": with_coverage,
         "n_chunks": n_chunks,
         "config_hash": chash,
+        "x64": _x64(),
         "configs": [sweep_mod.config_to_dict(c) for c in configs],
     }
 
@@ -198,7 +201,10 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise store.StoreError(f"--batch: expected an integer >= 1, got {batch!r}")
     batch = min(batch, n)
-    extra = {"batch": batch} if with_coverage else {"batch": batch, "coverage": False}
+    # everything that changes a chunk's numbers is in the run's identity: the configs, the
+    # chunk size, the per-scenario metrics and the precision
+    extra = {"batch": batch, "x64": _x64()} if with_coverage else \
+        {"batch": batch, "x64": _x64(), "coverage": False}
     chash = sweep_mod.config_hash(configs, extra)
     old = _check_existing(out, old, resume, overwrite, chash, batch, with_coverage)
     ranges = store.chunk_ranges(n, batch)
@@ -219,13 +225,13 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
 
     sim = simulate if simulate is not None else _default_simulate(configs)
     t0 = time.monotonic()
-    good = _verify_stored(out, ranges, bar)
+    good = _verify_stored(out, ranges, bar, chash)
     done = sum(b - a for i, (a, b) in enumerate(ranges) if i in good)
     bar.update(done, "resuming" if done else "compiling")
     ran = skipped = 0
     try:
         ran, skipped, done = _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks,
-                                         with_coverage, good)
+                                         with_coverage, good, chash)
     except BaseException:
         # interrupted or failed: finished chunks stay; the manifest says the run is incomplete
         man.update(status="incomplete", end_time=store._now(),
@@ -244,15 +250,16 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
     return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0)
 
 
-def _verify_stored(out: Path, ranges, bar) -> set[int]:
-    """Indices of the stored chunks that are sound (:func:`store.chunk_problem`); each stored but
-    bad chunk is named on the progress stream and will be simulated again."""
+def _verify_stored(out: Path, ranges, bar, run_id: str) -> set[int]:
+    """Indices of the stored chunks that are sound and of the run ``run_id``
+    (:func:`store.chunk_problem`); each stored but bad chunk is named on the progress stream
+    and will be simulated again."""
     good = set()
     for i, (a, b) in enumerate(ranges):
         p = store.chunk_path(out, i)
         if not p.is_file():
             continue
-        why = store.chunk_problem(p, a, b)
+        why = store.chunk_problem(p, a, b, run_id)
         if why is None:
             good.add(i)
         else:
@@ -312,7 +319,13 @@ def _chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget):
                       step_period=max(c.hlip.t_ssp + c.hlip.t_dsp for c in chunk_cfgs))
 
 
-def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, good):
+def _x64() -> bool:
+    import jax
+    return bool(jax.config.jax_enable_x64)
+
+
+def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, good,
+                run_id: str):
     """Simulate and store every chunk not in ``good`` (verified stored chunk indices, which
     grows as chunks are written); returns (chunks run, chunks skipped, scenarios done)."""
     ran = skipped = 0
@@ -336,6 +349,7 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
                              f"{type(err).__name__}: {err}") from None
         arrays = store._log_to_arrays(log, b - a)
         arrays["index"] = np.arange(a, b, dtype=np.int64)
+        arrays[store.RUN_ID] = np.full(b - a, run_id)
         mets = chunk_metrics(arrays, [metrics.first_push(c) for c in chunk_cfgs[:b - a]],
                              with_coverage)
         for k in metrics.SUMMARY_METRICS:

@@ -238,11 +238,17 @@ def load_chunk(path) -> dict[str, np.ndarray]:
                          f"`hlip-sweep run SWEEP --out DIR --resume` simulates it again") from None
 
 
-def chunk_problem(path, start: int, stop: int) -> str | None:
-    """Why the chunk file ``path`` cannot stand for scenarios [start, stop), or None if it is
-    sound: missing, unreadable or corrupt (every array is read, so every CRC is checked), a
-    log field missing, an array whose leading size is not the chunk's scenario count, step
-    arrays of unequal step counts, or an ``index`` other than start..stop-1."""
+#: a chunk's array naming the run that wrote it (its manifest's ``config_hash``, per scenario)
+RUN_ID = "run_id"
+
+
+def chunk_problem(path, start: int, stop: int, run_id: str | None = None) -> str | None:
+    """Why the chunk file ``path`` cannot stand for scenarios [start, stop) of the run
+    ``run_id``, or None if it is sound: missing, unreadable or corrupt (every array is read,
+    so every CRC is checked), a log field missing, an array whose leading size is not the
+    chunk's scenario count, step arrays of unequal step counts, an ``index`` other than
+    start..stop-1, or written by another run (its ``run_id``; chunks written before the
+    field existed carry none and are not checked)."""
     path = Path(path)
     if not path.is_file():
         return "missing"
@@ -263,6 +269,9 @@ def chunk_problem(path, start: int, stop: int) -> str | None:
             return f"array {k!r} has shape {z[k].shape}; expected {K} steps second"
     if not np.array_equal(z["index"], np.arange(start, stop)):
         return f"holds other scenarios (index {z['index'][:3].tolist()}...; expected {start}..{stop - 1})"
+    if run_id is not None and RUN_ID in z and set(map(str, z[RUN_ID])) != {run_id}:
+        return (f"was written by another run (run id {str(z[RUN_ID][0])[:12]}, this "
+                f"directory's {run_id[:12]})")
     return None
 
 
@@ -273,7 +282,7 @@ def check_chunks(out_dir) -> None:
     n, batch = int(man.get("n_scenarios", 0)), int(man.get("batch", 0))
     for i, (a, b) in enumerate(chunk_ranges(n, batch) if n and batch else ()):
         p = chunk_path(out_dir, i)
-        why = chunk_problem(p, a, b) if p.is_file() else None
+        why = chunk_problem(p, a, b, man.get("config_hash")) if p.is_file() else None
         if why is not None:
             raise StoreError(f"{p}: {why}; `hlip-sweep run SWEEP --out {out_dir} --resume` "
                              f"simulates the chunk again")

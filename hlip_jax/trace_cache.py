@@ -117,6 +117,12 @@ def loaded(name: str) -> int:
     return sum(1 for k in _loaded if k.startswith(name + "-"))
 
 
+def compiled_ahead(name: str) -> int:
+    """How many executables of the function ``name`` were compiled ahead for calls the cache
+    does not serve (:func:`compile_together`)."""
+    return sum(1 for sig in _ahead if sig[0].__name__ == name)
+
+
 @functools.lru_cache(maxsize=1)
 def code_digest() -> str:
     """SHA-256 over the package's ``.py`` files and the Cassie model directory (names and

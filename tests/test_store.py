@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import json
 import math
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -494,3 +496,35 @@ def test_progress_output_does_not_change_the_numbers(tmp_path):
     assert len(loud) == len(quiet) == 2
     for a, b in zip(loud, quiet):
         assert a.read_bytes() == b.read_bytes(), a.name
+
+
+def test_a_chunk_of_another_run_is_not_taken_for_this_ones(tmp_path):
+    """A chunk copied from a run of another sweep into an interrupted run: --resume names it
+    and simulates it again (the summary then holds this sweep's numbers); a finished
+    directory holding such a chunk is refused by check_chunks (report, coverage)."""
+    import shutil
+    sw = _tiny()
+    other = sweep.parse_sweep(TINY.replace("seed = 3", "seed = 4"))
+    runner.run_sweep(other, tmp_path / "other", batch=3, progress=False, simulate=fake_simulate)
+    part = tmp_path / "part"
+    runner.run_sweep(sw, part, batch=3, progress=False, simulate=fake_simulate, max_chunks=1)
+    shutil.copy(store.chunk_path(tmp_path / "other", 1), store.chunk_path(part, 1))
+    news, calls = io.StringIO(), []
+    r = runner.run_sweep(sw, part, resume=True, progress=True, stream=news,
+                         simulate=lambda c: fake_simulate(c, calls=calls))
+    assert r.complete and r.chunks_run == 2 and "written by another run" in news.getvalue()
+    ref = tmp_path / "ref"
+    runner.run_sweep(sw, ref, batch=3, progress=False, simulate=fake_simulate)
+    assert (ref / "summary.csv").read_bytes() == (part / "summary.csv").read_bytes()
+    shutil.copy(store.chunk_path(tmp_path / "other", 0), store.chunk_path(part, 0))
+    with pytest.raises(store.StoreError, match="written by another run"):
+        store.check_chunks(part)
+
+
+def test_resume_in_another_precision_is_refused(tmp_path, monkeypatch):
+    sw = _tiny()
+    part = tmp_path / "part"
+    runner.run_sweep(sw, part, batch=3, progress=False, simulate=fake_simulate, max_chunks=1)
+    monkeypatch.setattr(runner, "_x64", lambda: not jax.config.jax_enable_x64)
+    with pytest.raises(store.StoreError, match="precision differs"):
+        runner.run_sweep(sw, part, resume=True, progress=False, simulate=fake_simulate)
