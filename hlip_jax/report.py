@@ -362,6 +362,8 @@ def across_run_section(doc, out: Path) -> None:
               "held-out statistic. Sweep seeds (the [analysis] table's splits) to get one.")
         return
     doc.table(ACROSS_HEAD, across_run_rows(rows))
+    said = dict.fromkeys((r["split"], r["assumption"]) for r in rows if r["level"] == "run")
+    doc.p("What each split assumes: " + "; ".join(f"{sp}: {a}" for sp, a in said) + ".")
     _coverage_figures(doc, out, next(r["split"] for r in rows if r["level"] == "run"))
 
 

@@ -151,6 +151,7 @@ def test_report_leads_with_the_run_level_table(hlip_run):
     for h in report.ACROSS_HEAD:
         assert h in text
     assert "run-calibrated q=0.9" in text and "What is guaranteed" in text
+    assert "What each split assumes: seed: test runs are other noise seeds" in text
     # one figure of the held-out errors against E per group of the first split (seed)
     for i in range(2):
         f = hlip_run / "figures" / f"coverage_seed_{i}.png"
