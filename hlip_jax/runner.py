@@ -145,6 +145,16 @@ def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, 
                     batch: int, with_coverage: bool) -> dict | None:
     """Refuse a run into a directory holding another one (or resuming a different config);
     with ``overwrite``, delete the old run.  Returns the manifest to continue, or None."""
+    if old is None and resume:
+        raise store.StoreError(f"--resume: {out} holds no run to resume (no {store.MANIFEST}); "
+                               "drop --resume to start one")
+    if old is None:
+        foreign = sorted(p.name for p in out.iterdir() if p.name != store.LOCK)
+        if foreign:
+            raise store.StoreError(f"--out {out}: a directory that is not a results directory "
+                                   f"(no {store.MANIFEST}; it holds {foreign[0]!r}"
+                                   f"{' and more' if len(foreign) > 1 else ''}); choose an empty "
+                                   "or new directory")
     if old is not None and not (resume or overwrite):
         state = "complete" if old.get("status") == "complete" else "incomplete"
         raise store.StoreError(f"{out} already holds a run ({state}); pass --resume to continue it, "
@@ -160,12 +170,26 @@ def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, 
         raise store.StoreError(f"refusing to resume {out}: {why}; config hash {chash[:12]} vs "
                          f"{str(old.get('config_hash'))[:12]} in {store.MANIFEST}")
     if old is not None and overwrite and not resume:
-        for f in store.chunk_files(out):
-            f.unlink()
-        for name in (store.SUMMARY, store.COVERAGE, store.MANIFEST):
-            (out / name).unlink(missing_ok=True)
+        _discard_run(out)
         return None
     return old if resume else None
+
+
+#: what a run and its report write into a results directory, besides the lock
+RUN_FILES = ("chunks", "figures", "ticks", "summary.csv", "coverage.csv", "report.html",
+             "report.md", "manifest.json")
+
+
+def _discard_run(out: Path) -> None:
+    """Remove everything an earlier run wrote in ``out`` (:data:`RUN_FILES`): its chunks,
+    summaries, report, figures and per-tick logs; a symbolic link is removed, never followed."""
+    import shutil
+    for name in RUN_FILES:
+        p = out / name
+        if p.is_symlink() or p.is_file():
+            p.unlink()
+        elif p.is_dir():
+            shutil.rmtree(p)
 
 
 def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_coverage: bool) -> dict:

@@ -843,3 +843,29 @@ def test_control_characters_never_reach_the_terminal(tmp_path, capsys, fake_loop
     p.write_text('[[paths]]\nshape = "line"\nname = "a\\u001b[2J"\n')
     code, _, err = cli(capsys, "show", p)
     assert code == 2 and "\x1b" not in err and "\\x1b" in err
+
+
+def test_out_that_is_not_a_results_directory_and_resume_without_a_run(tmp_path, tiny_sweep,
+                                                                     capsys, fake_loop):
+    """A user's own directory as --out: refused, the user's file untouched; --resume into a
+    directory that holds no run: refused, not started fresh; --overwrite removes the old run's
+    report, figures and per-tick logs too."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "summary.csv").write_text("my own data\n")
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", mine, "--quiet")
+    assert "not a results directory" in _one_line_error(code, err)
+    assert (mine / "summary.csv").read_text() == "my own data\n"
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "new", "--resume", "--quiet")
+    assert "no run to resume" in _one_line_error(code, err)
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    for name in ("figures", "ticks"):
+        (out / name).mkdir(exist_ok=True)
+        (out / name / "old.png").write_text("old")
+    (out / "report.html").write_text("old report")
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--overwrite", "--quiet",
+                       "--no-report")
+    assert code == 0, err
+    assert not (out / "report.html").exists() and not (out / "figures").exists()
+    assert not (out / "ticks").exists() and (out / "summary.csv").is_file()
