@@ -51,6 +51,7 @@ from __future__ import annotations
 import csv
 import functools
 import os
+import stat
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -203,6 +204,11 @@ def _read_hull(path: str, stamp: tuple) -> tuple:
     return tuple(np.array(p, np.float64) for p in planes)
 
 
+#: the largest hull W file read [bytes]: a hull's vertices take a few kB; a device or a
+#: runaway file is refused before it is read
+HULL_FILE_MAX_BYTES = 10_000_000
+
+
 def read_hull(path) -> tuple:
     """The points of a hull W from a CSV file with the columns plane (1 or 2), c [m], p [m],
     v [m/s] (what ``hlip-sweep whull`` writes), as two (N_i, 3) arrays.  ValueError naming the
@@ -212,6 +218,11 @@ def read_hull(path) -> tuple:
         st = os.stat(path)
     except OSError:
         raise ValueError(f"{path}: file not found") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError(f"{path}: not a regular file (a hull W file is a CSV file)")
+    if st.st_size > HULL_FILE_MAX_BYTES:
+        raise ValueError(f"{path}: {st.st_size} bytes; allowed: at most {HULL_FILE_MAX_BYTES} "
+                         "(a hull W holds its vertices, a few hundred lines)")
     return _read_hull(path, (st.st_mtime_ns, st.st_size))
 
 

@@ -171,10 +171,37 @@ def read_manifest(out_dir) -> dict:
         raise StoreError(f"{out_dir}: results directory not found")
     if not p.is_file():
         raise StoreError(f"{out_dir}: not a results directory (no {MANIFEST})")
+    if not p.is_file() or p.stat().st_size > MANIFEST_MAX_BYTES:
+        raise StoreError(f"{p}: not a manifest (a regular file of at most {MANIFEST_MAX_BYTES} "
+                         "bytes)")
     try:
-        return json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError) as err:
+        man = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:     # JSONDecodeError and UnicodeDecodeError
         raise StoreError(f"{p}: unreadable manifest: {err}") from None
+    why = _manifest_problem(man)
+    if why is not None:
+        raise StoreError(f"{p}: damaged manifest: {why}; rerun the sweep with --overwrite")
+    return man
+
+
+#: the largest manifest read [bytes] (1024 scenarios take about 2 MB)
+MANIFEST_MAX_BYTES = 2_000_000_000
+
+
+def _manifest_problem(man) -> str | None:
+    """What makes a parsed manifest unusable, or None: not an object, or ``configs``,
+    ``batch``, ``n_scenarios`` missing or inconsistent."""
+    if not isinstance(man, dict):
+        return f"expected a JSON object, got {type(man).__name__}"
+    configs, batch, n = man.get("configs"), man.get("batch"), man.get("n_scenarios")
+    if not isinstance(configs, list) or not all(isinstance(c, dict) for c in configs):
+        return "'configs' is not a list of scenario objects"
+    for key, v in (("batch", batch), ("n_scenarios", n)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            return f"{key!r} is {v!r}; expected an integer >= 1"
+    if n != len(configs):
+        return f"'n_scenarios' is {n} but {len(configs)} configs are listed"
+    return None
 
 
 def _write_manifest(out_dir, man: dict) -> None:

@@ -869,3 +869,35 @@ def test_out_that_is_not_a_results_directory_and_resume_without_a_run(tmp_path, 
     assert code == 0, err
     assert not (out / "report.html").exists() and not (out / "figures").exists()
     assert not (out / "ticks").exists() and (out / "summary.csv").is_file()
+
+
+@pytest.mark.parametrize("text,frag", [
+    (b"[1, 2]", "expected a JSON object"),
+    (b'{"batch": 2, "n_scenarios": 2}', "'configs'"),
+    (b'{"configs": [{}, {}], "n_scenarios": 2}', "'batch'"),
+    (b'{"configs": [{}], "batch": 1, "n_scenarios": 10}', "n_scenarios"),
+    (b"\xff\xfe not utf-8", "unreadable manifest"),
+])
+def test_a_damaged_manifest_is_one_line(text, frag, tmp_path, tiny_sweep, capsys, fake_loop):
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    (out / "manifest.json").write_bytes(text)
+    for cmd in ("report", "coverage"):
+        code, _, err = cli(capsys, cmd, out)
+        assert frag in _one_line_error(code, err) and "manifest.json" in err
+
+
+def test_a_hull_w_file_must_be_a_small_regular_file(tmp_path):
+    """A FIFO or a device as mpc.w_hull_file is refused before it is opened (it would block
+    or never end), as is a file over the size limit."""
+    from hlip_jax import robust
+    fifo = tmp_path / "w.fifo"
+    os.mkfifo(fifo)
+    for path in (fifo, "/dev/zero"):
+        with pytest.raises(ValueError, match="not a regular file"):
+            robust.read_hull(path)
+    big = tmp_path / "big.csv"
+    with open(big, "wb") as f:
+        f.truncate(robust.HULL_FILE_MAX_BYTES + 1)
+    with pytest.raises(ValueError, match="at most"):
+        robust.read_hull(big)
