@@ -561,10 +561,11 @@ def _parse_axes(grid, where="grid") -> tuple[Axis, ...]:
     seen: dict[str, str] = {}
 
     def add_field(field, loc):
-        _resolve_field(field, loc)
-        if field in seen:
-            raise SweepError(f"{loc}.{field!r}: field is swept twice (also in {seen[field]})")
-        seen[field] = loc
+        # the resolved keys, so that aliases of one field ("pushes.0" and "pushes.00") count once
+        key = ".".join(map(str, _resolve_field(field, loc)))
+        if key in seen:
+            raise SweepError(f"{loc}.{field!r}: field is swept twice (also in {seen[key]})")
+        seen[key] = f"{loc}.{field!r}"
 
     def check_values(field, vals, loc):
         if not isinstance(vals, list):

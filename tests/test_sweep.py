@@ -326,3 +326,14 @@ def test_path_names_and_slugs():
     for name, slug in (("a b", "a_b"), ("x+y", "x_y"), ("run.", "run"), ("circle-2", "circle-2"),
                        ("_z_", "z")):
         assert sweep.file_slug(name) == slug, name
+
+
+def test_aliases_of_one_field_are_swept_twice():
+    """`pushes.0` and `pushes.00` name the same push: sweeping both is refused (before, the
+    names and summary said one force while the other was simulated)."""
+    text = ('[base]\nduration = 10.0\n[[base.disturbance.pushes]]\ntime = 2.0\n'
+            '[[paths]]\nshape = "line"\n[grid.product]\n'
+            '"disturbance.pushes.0.force" = [100.0, 200.0]\n'
+            '"disturbance.pushes.00.force" = [300.0]\n')
+    with pytest.raises(sweep.SweepError, match="swept twice"):
+        sweep.parse_sweep(text)
