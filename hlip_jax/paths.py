@@ -466,6 +466,14 @@ def _check(shape, name, value, spec: ParamSpec):
         return bool(value)
     if spec.kind == "points":
         try:
+            flat = np.asarray(value, dtype=object).ravel() if np.ndim(value) else [value]
+        except ValueError:                      # ragged: not pairs
+            flat = [None]
+        if not all(isinstance(x, (int, float, np.integer, np.floating))
+                   and not isinstance(x, (bool, np.bool_)) for x in flat):
+            _fail(shape, name, value, spec, "allowed: a list of [x, y] pairs of numbers "
+                  "(not strings or booleans)")
+        try:
             pts = np.asarray(value, dtype=float)
         except (TypeError, ValueError):
             _fail(shape, name, value, spec, "allowed: a list of [x, y] pairs")

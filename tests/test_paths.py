@@ -271,6 +271,9 @@ def test_stack_paths_rejects_mixed_sizes():
     ("polyline", dict(waypoints=[(0, 0)]), "waypoints"),
     ("polyline", dict(waypoints=[(0, 0), (1, 0), (1, 0)]), "waypoints"),
     ("polyline", dict(waypoints=[(0, 0), (1, float("inf"))]), "waypoints"),
+    ("polyline", dict(waypoints=[("0", "0"), ("2", "0")]), "waypoints"),
+    ("polyline", dict(waypoints=[(True, 0), (2, 0)]), "waypoints"),
+    ("polyline", dict(waypoints=[(0, 0), (2,)]), "waypoints"),
 ])
 def test_bad_parameters_name_the_field(shape, params, field):
     with pytest.raises(ValueError) as exc:
