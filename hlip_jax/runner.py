@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from hlip_jax import metrics, progress, store
+from hlip_jax import impl, metrics, progress, store
 from hlip_jax.analysis import settings as analysis_settings
 from hlip_jax import sweep as sweep_mod
 
@@ -135,10 +135,25 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
     configs = list(sw.scenarios)
     if not configs:
         raise store.StoreError("the sweep expands to no scenarios")
+    resolved = resolve_impl(sw)
+    configs = impl.apply(configs, resolved.settings)
+    bar = Progress(len(configs), sw.name, stream=stream, enabled=progress)
+    if progress and any(c.plant == "cassie" for c in configs):
+        bar.note(resolved.describe())
     with store.results_lock(out):
         return _run_locked(sw, out, configs, batch, resume, overwrite, simulate, max_chunks,
-                           Progress(len(configs), sw.name, stream=stream, enabled=progress),
-                           with_coverage)
+                           bar, with_coverage, resolved)
+
+
+def resolve_impl(sw) -> "impl.Resolved":
+    """The sweep's implementation profile (:mod:`hlip_jax.impl`) on this process's JAX
+    backend; StoreError (one line) when the profile does not fit the backend."""
+    import jax
+    try:
+        return impl.resolve(sw.impl_profile, jax.default_backend(), sw.impl_explicit,
+                            impl.warp_available())
+    except ValueError as err:
+        raise store.StoreError(str(err)) from None
 
 
 def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, chash: str,
@@ -216,7 +231,7 @@ def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_cover
 
 
 def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_chunks, bar,
-                with_coverage) -> RunResult:
+                with_coverage, resolved) -> RunResult:
     """:func:`run_sweep` with the directory lock held."""
     n = len(configs)
     old = store.read_manifest(out) if (out / store.MANIFEST).is_file() else None
@@ -234,6 +249,7 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
     ranges = store.chunk_ranges(n, batch)
     man = dict(old) if old else _new_manifest(sw, configs, batch, len(ranges), chash,
                                               with_coverage)
+    man["impl"] = resolved._asdict()
     man.update({"versions": store._versions(), "jax": store._jax_info(), "git_commit": store._git_commit(),
                 "start_time": man.get("start_time") or store._now(), "end_time": None,
                 "status": "running"})

@@ -1,6 +1,6 @@
 """Sweep files: TOML text → validated list of :class:`hlip_jax.config.ScenarioConfig`.
 
-A sweep file (read with :mod:`tomllib`) has six top-level keys::
+A sweep file (read with :mod:`tomllib`) has seven top-level keys::
 
     name = "paper"                       # optional; default: the file's stem
     description = "..."                  # optional free text
@@ -29,6 +29,9 @@ A sweep file (read with :mod:`tomllib`) has six top-level keys::
     [[grid.zip]]                         # one more axis: these lists are walked together
     "disturbance.pushes.0.force" = [100.0, 200.0]
     "disturbance.pushes.0.time"  = [5.0, 10.0]
+
+    [impl]                               # optional: hlip_jax.impl
+    profile = "auto"                     # GPU settings on a GPU, the sweep's own on a CPU
 
     [analysis]                           # optional: hlip_jax.analysis.settings
     splits = ["seed", "path", "speed"]   # held-out splits of coverage.csv
@@ -89,6 +92,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from hlip_jax import config as C
+from hlip_jax import impl as impl_mod
 from hlip_jax import plants
 from hlip_jax.analysis import settings as analysis_settings
 from hlip_jax.analysis.settings import AnalysisConfig
@@ -116,7 +120,7 @@ _NAME_ALLOWED = "letters, digits, spaces and . _ - + = , @ ( ) (no slashes)"
 #: requires them equal across a batch): one value per sweep
 STATIC_FIELDS = C.STATIC_FIELDS
 
-TOP_KEYS = ("name", "description", "base", "paths", "grid", "analysis")
+TOP_KEYS = ("name", "description", "base", "paths", "grid", "analysis", "impl")
 GRID_KEYS = ("product", "zip")
 PATH_RESERVED = ("shape", "name", "overrides")
 # ScenarioConfig fields a sweep file may set in [base] / [paths.overrides]; name and swept are
@@ -441,6 +445,10 @@ class Sweep:
     n_scenarios: int                  # scenarios after --limit
     #: the ``[analysis]`` table (:mod:`hlip_jax.analysis.settings`): splits, methods, q, warm-up
     analysis: AnalysisConfig
+    #: the ``[impl]`` table's profile (:mod:`hlip_jax.impl`) and the implementation fields the
+    #: file (or ``--physics``) sets itself, which a profile never changes
+    impl_profile: str
+    impl_explicit: frozenset
     #: builds the scenarios (a large grid is counted at parse time and built on demand)
     expand: Callable[[], tuple] = dataclasses.field(repr=False, compare=False)
 
@@ -784,6 +792,7 @@ def _expand(doc, text, source, overrides, limit, default_name) -> Sweep:
         analysis = analysis_settings.from_dict(doc.get("analysis"))
     except ValueError as err:
         raise SweepError(str(err)) from None
+    profile = _impl_profile(doc.get("impl"))
     base, base_path = _base_tables(doc, *overrides)
     entries = _parse_paths(doc, base, base_path)
     axes = _parse_axes(doc.get("grid"))
@@ -810,7 +819,33 @@ def _expand(doc, text, source, overrides, limit, default_name) -> Sweep:
     _check_static_scenarios(checked)
     return Sweep(name=name, description=desc, source=source, text=text,
                  paths=tuple(e.name for e in entries), axes=axes, total=total,
-                 n_scenarios=stop, analysis=analysis, expand=expand)
+                 n_scenarios=stop, analysis=analysis, impl_profile=profile,
+                 impl_explicit=_impl_explicit(base, entries, axes), expand=expand)
+
+
+def _impl_profile(raw) -> str:
+    """The ``[impl]`` table's profile ("auto" without one); SweepError naming the field."""
+    if raw is None:
+        return "auto"
+    if not isinstance(raw, dict):
+        raise SweepError(f"impl: expected a table, got {_tname(raw)} {_fmt(raw)}")
+    for k in raw:
+        if k != "profile":
+            raise _unknown_key(k, ("profile",), "impl")
+    prof = raw.get("profile", "auto")
+    if prof not in impl_mod.PROFILES:
+        raise SweepError(f"impl.profile: {_fmt(prof)} is not allowed; allowed: "
+                         f"{', '.join(impl_mod.PROFILES)}")
+    return prof
+
+
+def _impl_explicit(base: dict, entries, axes) -> frozenset:
+    """The implementation fields (:data:`hlip_jax.impl.FIELDS`) the sweep sets itself: in
+    [base.cassie] (with --physics), any path's overrides or a grid axis."""
+    tables = [base.get("cassie", {})] + [e.raw.get("cassie", {}) for e in entries]
+    named = {f"cassie.{k}" for t in tables if isinstance(t, dict) for k in t}
+    named |= {f for a in axes for f in a.fields}
+    return frozenset(named & set(impl_mod.FIELDS))
 
 
 def _base_tables(doc: dict, plant, duration, physics=None) -> tuple[dict, dict]:

@@ -1,0 +1,58 @@
+"""Implementation profiles (hlip_jax.impl): which settings a profile fills on which backend,
+that a sweep's own settings win, and that a run records what it used."""
+
+from __future__ import annotations
+
+import pytest
+
+from hlip_jax import impl, runner, store, sweep
+
+CASSIE = '[base]\nplant = "cassie"\nduration = 1.0\n[[paths]]\nshape = "line"\n'
+
+
+def test_auto_is_the_gpu_profile_on_a_gpu_and_the_sweeps_own_elsewhere():
+    none = frozenset()
+    assert impl.resolve("auto", "cpu", none, True) == ("cpu", "cpu", {})
+    gpu = impl.resolve("auto", "gpu", none, True)
+    assert gpu.profile == "gpu" and gpu.settings == impl.GPU
+    assert "cassie.physics" not in impl.resolve("auto", "gpu", none, False).settings
+    assert impl.resolve("sweep", "gpu", none, True).settings == {}
+    with pytest.raises(ValueError, match="needs a GPU backend"):
+        impl.resolve("gpu", "cpu", none, True)
+    with pytest.raises(ValueError, match="allowed: auto, cpu, gpu, sweep"):
+        impl.resolve("fast", "gpu", none, True)
+
+
+def test_fields_the_sweep_sets_win_and_the_fused_kernel_needs_the_inverse():
+    sw = sweep.parse_sweep(CASSIE + '[paths.overrides.cassie]\nqp_linsys = "cholesky"\n'
+                           'terms = "mjx"\n')
+    assert sw.impl_explicit == {"cassie.qp_linsys", "cassie.terms"}
+    r = impl.resolve(sw.impl_profile, "gpu", sw.impl_explicit, True)
+    c = impl.apply(list(sw.scenarios), r.settings)[0].cassie
+    assert (c.qp_linsys, c.qp_kernel, c.terms, c.condense, c.physics) == (
+        "cholesky", "xla", "mjx", "deflated", "warp")
+    hlip = sweep.parse_sweep('[[paths]]\nshape = "line"\n').scenarios
+    assert impl.apply(hlip, r.settings) == list(hlip)          # no Cassie, nothing to fill
+    grid = sweep.parse_sweep(CASSIE + '[grid.product]\n"cassie.condense" = ["eigen"]\n')
+    assert "cassie.condense" in grid.impl_explicit
+
+
+@pytest.mark.parametrize("table,frag", [('[impl]\nprofile = "fast"\n', "impl.profile"),
+                                        ('[impl]\nspeed = 1\n', "impl")])
+def test_a_bad_impl_table_is_one_line(table, frag):
+    with pytest.raises(sweep.SweepError, match=frag):
+        sweep.parse_sweep(CASSIE + table)
+
+
+def test_the_manifest_records_the_profile_and_gpu_is_refused_on_a_cpu(tmp_path):
+    """On the CPU backend (CI's) the auto profile fills nothing and says so in the manifest;
+    a sweep that asks for the GPU profile there is refused before anything runs."""
+    from test_store import fake_simulate
+    runner.run_sweep(sweep.parse_sweep(CASSIE), tmp_path / "a", progress=False,
+                     simulate=fake_simulate)
+    assert store.read_manifest(tmp_path / "a")["impl"] == {
+        "profile": "cpu", "backend": "cpu", "settings": {}}
+    with pytest.raises(store.StoreError, match="needs a GPU backend"):
+        runner.run_sweep(sweep.parse_sweep(CASSIE + '[impl]\nprofile = "gpu"\n'),
+                         tmp_path / "b", progress=False, simulate=fake_simulate)
+    assert not (tmp_path / "b").exists()
