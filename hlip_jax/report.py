@@ -584,7 +584,14 @@ def _read_results(out: Path, heatmap_axes) -> tuple[dict, list[dict]]:
             raise ReportError(f"{out}: the run is incomplete; finish it with `hlip-sweep run "
                               f"... --resume` first")
         store.write_summary(out)
-    return man, store.read_summary(out)
+    rows = store.read_summary(out)
+    stored = sum(int(b) - int(a) for a, b in
+                 store.chunk_ranges(int(man["n_scenarios"]), int(man["batch"]))[:len(store.chunk_files(out))])
+    if sorted(r.get("index") for r in rows) != list(range(len(rows))) or len(rows) != stored:
+        raise ReportError(f"{out / store.SUMMARY}: {len(rows)} rows for the {stored} stored "
+                          "scenarios (cut or altered); delete it and run `hlip-sweep report` "
+                          "again to rewrite it from the chunks")
+    return man, rows
 
 
 def _header_section(doc: "_Doc", man: dict, rows: list[dict], out: Path) -> str:

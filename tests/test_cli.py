@@ -901,3 +901,17 @@ def test_a_hull_w_file_must_be_a_small_regular_file(tmp_path):
         f.truncate(robust.HULL_FILE_MAX_BYTES + 1)
     with pytest.raises(ValueError, match="at most"):
         robust.read_hull(big)
+
+
+def test_a_summary_cut_to_its_header_is_refused_and_rewritten_once_deleted(tmp_path, tiny_sweep,
+                                                                          capsys, fake_loop):
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    whole = (out / "summary.csv").read_text()
+    (out / "summary.csv").write_text(whole.splitlines()[0] + "\n")
+    code, _, err = cli(capsys, "report", out)
+    assert "summary.csv" in _one_line_error(code, err) and "rows" in err
+    (out / "summary.csv").unlink()
+    code, _, err = cli(capsys, "report", out)
+    assert code == 0, err
+    assert (out / "summary.csv").read_text() == whole
