@@ -170,35 +170,25 @@ def _plane_mats(log, s):
     return A, B, K, Acl
 
 
-def invariant_analysis(log, members: list[int]):
-    """:func:`hlip_jax.invariant.analyse` on the errors of ``members`` (rows of ``log``, same
-    A, B, K; [c, p, v] or [p, v] as :func:`hlip_jax.errors.error_model` decides): W box,
-    held-out half when there are ≥ 2 runs."""
-    from hlip_jax import invariant as inv
-    A, B, K, sl = errors.error_model(log, members[0])
-    sel = np.asarray(members)
-    valid = steplog.alive(log["valid"][sel])
-    hold = 0.5 if len(members) >= 2 else 0.0
-    heading = (np.asarray(log["ref_heading"][sel], np.float64)
-               if errors.analysis_frame(log, members[0]) == "heading" else None)
-    return inv.analyse(log["x_robot"][sel], log["u_robot"][sel], valid, log["e"][sel],
-                       A, B, K, W_estimator="box", holdout_fraction=hold, seed=0,
-                       min_halfwidth=errors.W_MIN_HALFWIDTH, u_hlip=log["u_hlip"][sel],
-                       heading=heading, anchor=np.asarray(log["anchor"][members[0]])[sl])
+def invariant_analysis(log, members: list[int], man: dict, warmup: int):
+    """The consistency view (:func:`hlip_jax.analysis.coverage.consistency`) of the runs
+    ``members`` (rows of ``log``, one A, B, K) with the analysis's own masks: (result, the
+    runs' :class:`hlip_jax.analysis.runs.RunErrors`)."""
+    from hlip_jax.analysis import coverage as cov, runs as runs_mod
+    found = []
+    for s in members:
+        cfg = sweep.config_from_dict(man["configs"][int(log["index"][s])])
+        pushes = [(p.time, p.duration) for p in metrics.active_pushes(cfg)]
+        Acl, _, run = runs_mod.run_errors(log, s, pushes, warmup)
+        found.append(run)
+    return cov.consistency(Acl, found), found
 
 
-def fig_invariant(an, log, members, path: Path, title: str) -> None:
-    from hlip_jax import invariant as inv
+def fig_invariant(an, runs, path: Path, title: str) -> None:
     plt = _plt()
-    sel = np.asarray(members)
-    valid = steplog.alive(log["valid"][sel])
-    sl = errors.error_model(log, members[0])[3]
-    e = np.asarray(log["e"][sel], np.float64)[..., sl]
-    if errors.analysis_frame(log, members[0]) == "heading":
-        e = inv.to_heading(e, np.asarray(log["ref_heading"][sel], np.float64))
-    e = e[valid]                                                     # (n, 2, dim)
-    fig = set_figures.plot_planes((an.planes[0].E, an.planes[1].E), (e[:, 0], e[:, 1]),
-                          title=title + " — error invariant sets E and errors e_k")
+    e = [np.concatenate([r.kept_e(p) for r in runs]) for p in (0, 1)]
+    fig = set_figures.plot_planes((an.planes[0].E, an.planes[1].E), e,
+                                  title=title + " — error invariant sets E and kept errors e_k")
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
 
@@ -220,7 +210,7 @@ def _coverage_rows(an, n_runs: int, row_summary: dict | None,
             held = f"{_fmt(pa.heldout.inner)} – {_fmt(pa.heldout.outer)} (n={pa.heldout.n})"
         elif row_summary is not None:
             key = "cov_" + "xy"[p] + "_heldout"
-            held = f"{_fmt(row_summary.get(key, math.nan))} (later half of the steps)"
+            held = f"{_fmt(row_summary.get(key, math.nan))} (later half of the steps, all steps)"
         else:
             held = "–"
         rows.append([plane, f"[{wlo}] – [{whi}]", str(pa.s), f"{pa.alpha:.3g}",
@@ -658,8 +648,8 @@ def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
     doc.h(3, "Error invariant sets and coverage")
     try:
         frame = errors.analysis_frame(log, same[0])
-        an = invariant_analysis(log, same)
-        fig_invariant(an, log, same, fig_dir / f"{slug}_invariant.png", pname)
+        an, runs_ = invariant_analysis(log, same, man, store.analysis_settings(out).warmup)
+        fig_invariant(an, runs_, fig_dir / f"{slug}_invariant.png", pname)
         doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")
         doc.p(f"W and E from {len(same)} run(s) sharing the gain of scenario #{idx}; "
               "E is the mRPI set of e⁺ = (A + BK) e + d (Raković et al. 2005) on "
@@ -667,11 +657,13 @@ def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
               "W the box of d = w + B δu (the S2S disturbance w plus the foot-placement "
               "error δu, executed step minus the law's step"
               + _placement_note(rep) + "), "
-              "coverage = fraction of observed errors inside E (bracket inner F_s – outer "
-              "F_s/(1−α)); held-out: " + ("W from half of the runs, coverage on the others."
-                                           if len(same) >= 2 else
-                                           "W from the first half of the steps, coverage "
-                                           "of the errors in the second half.")
+              "coverage = fraction of the kept errors (after the warm-up, outside push "
+              "windows) inside E (bracket inner F_s – outer F_s/(1−α)); a consistency view, "
+              "the coverage over held-out runs above is the statistic; held-out here: "
+              + ("W from alternate runs, coverage of the others' kept errors."
+                 if len(same) >= 2 else
+                 "one run: the summary's per-scenario figure, W from the first half of its "
+                 "steps.")
               + (" Planes: sagittal along the path heading θ_d(t_k), lateral to its left "
                  "(errors and disturbances rotated into that frame at every step)."
                  if frame == "heading" else

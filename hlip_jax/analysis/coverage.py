@@ -24,7 +24,7 @@ never used for W).
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
@@ -131,6 +131,50 @@ def plane_rows(A_cl, train, test, p: int, name: str, q: float) -> list[dict]:
               **_sizes(W, E, dim), **_err_stats(test, p, dim, q)}
     run, step = _level_rows(E, train, test, p)
     return [dict(common, level="run", **run), dict(common, level="step", **step)]
+
+
+class PlaneConsistency(NamedTuple):
+    """One plane of :func:`consistency`: W (box), E its mRPI bracket, its terms ``s`` and
+    ``alpha``, E's volume, the in-sample coverage of the kept errors (inner–outer bracket), and
+    the held-out coverage (W from alternate runs, the others' kept errors; None for one run)."""
+    W: object
+    E: object
+    s: int
+    alpha: float
+    volume: float
+    coverage: object
+    heldout: object
+
+
+class Consistency(NamedTuple):
+    """``planes``: (sagittal or world x, lateral or world y) :class:`PlaneConsistency`."""
+    planes: tuple
+
+
+def _pooled(runs, p: int, which: str) -> np.ndarray:
+    parts = [r.kept_d(p) if which == "d" else r.kept_e(p) for r in runs]
+    return np.concatenate(parts) if parts else np.zeros((0, 1))
+
+
+def consistency(A_cl, runs: Sequence[RunErrors]) -> Consistency:
+    """The report's per-path consistency view: per plane the box W of every run's kept
+    disturbances (runs that fell included: this is the in-sample view), its mRPI set E, and
+    the coverage of the kept errors by E; with two or more runs also the held-out coverage of
+    alternate runs (:func:`hlip_jax.analysis.splits.interleave` over the run order).
+    ValueError where W cannot be formed (no kept disturbance) or A_cl is not Schur stable."""
+    from hlip_jax import invariant as inv
+    held = splits.interleave(list(range(len(runs)))) if len(runs) >= 2 else None
+    planes = []
+    for p in range(A_cl.shape[0]):
+        W, E = estimators.fit("box", A_cl[p], _pooled(runs, p, "d"), [], [], 0.5)
+        heldout = None
+        if held is not None:
+            train = [runs[i] for i in held[0]]
+            _, E_tr = estimators.fit("box", A_cl[p], _pooled(train, p, "d"), [], [], 0.5)
+            heldout = inv.coverage(E_tr, _pooled([runs[i] for i in held[1]], p, "e"))
+        planes.append(PlaneConsistency(W, E, E.s, E.alpha, float(E.volume()),
+                                       inv.coverage(E, _pooled(runs, p, "e")), heldout))
+    return Consistency(tuple(planes))
 
 
 def fitted_sets(A_cl, runs: Sequence[RunErrors], keys: Sequence, q: float):
