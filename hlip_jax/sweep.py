@@ -109,6 +109,9 @@ MAX_SCENARIOS = 10_000_000
 #: grids up to this size are expanded and validated scenario by scenario at parse time; larger
 #: ones are validated on a covering subset (:func:`_validation_points`) and expanded on demand
 EAGER_SCENARIOS = 5_000
+#: values one grid axis may hold: each is validated on its own (about 50 µs each), so an axis of
+#: millions would keep `show` busy for minutes
+MAX_AXIS_VALUES = 100_000
 #: deepest nesting of tables and arrays a sweep file may have (a real one needs about 6)
 MAX_DEPTH = 32
 #: longest sweep name (it names the results directory) and path name (it names figure files)
@@ -581,6 +584,9 @@ def _parse_axes(grid, where="grid") -> tuple[Axis, ...]:
                              f"{_tname(vals)} {_fmt(vals)}")
         if len(vals) == 0:
             raise SweepError(f"{loc}.{field!r}: empty grid axis; give at least one value")
+        if len(vals) > MAX_AXIS_VALUES:
+            raise SweepError(f"{loc}.{field!r}: {len(vals)} values; allowed: at most "
+                             f"{MAX_AXIS_VALUES} per axis (every value is validated)")
         if field.split(".")[0] != "path":
             kind, meta = _field_meta(field)
             vals = [check_scalar(v, kind, meta, f"{loc}.{field!r}[{j}]") for j, v in enumerate(vals)]
@@ -974,9 +980,10 @@ def _check_static_scenarios(scenarios) -> None:
 
 def _check_table_sizes(scenarios) -> None:
     """Every path of a sweep needs the same ``n_samples`` (a static table size)."""
-    sizes = {}
+    sizes, specs = {}, {}
     for cfg in scenarios:
-        spec = path_param_spec(cfg.path.shape)
+        shape = cfg.path.shape
+        spec = specs[shape] if shape in specs else specs.setdefault(shape, path_param_spec(shape))
         if "n_samples" in spec:
             sizes.setdefault(cfg.path.params.get("n_samples", spec["n_samples"]["default"]),
                              cfg.swept["path"])

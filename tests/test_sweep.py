@@ -337,3 +337,9 @@ def test_aliases_of_one_field_are_swept_twice():
             '"disturbance.pushes.00.force" = [300.0]\n')
     with pytest.raises(sweep.SweepError, match="swept twice"):
         sweep.parse_sweep(text)
+
+
+def test_an_axis_of_too_many_values_is_refused_at_once():
+    values = ", ".join(str(i) for i in range(sweep.MAX_AXIS_VALUES + 1))
+    with pytest.raises(sweep.SweepError, match="at most 100000 per axis"):
+        sweep.parse_sweep(f'[[paths]]\nshape = "line"\n[grid.product]\nseed = [{values}]\n')
