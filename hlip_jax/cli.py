@@ -479,8 +479,6 @@ def _train_on(text: str | None):
 
 def _coverage_settings(d: Path, args):
     """The directory's analysis settings with the command line's --q, --split, --warmup."""
-    import dataclasses
-
     from hlip_jax import store
     from hlip_jax.analysis import settings as an
     base = an.to_dict(store.analysis_settings(d))

@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Callable
+
+from hlip_jax.cache_files import least_recently_used
 
 MIN_COMPILE_S = 1.0    # [s] programs faster to compile than this are not stored
 TRACES = "traces"      # subdirectory of the traced closed loops (hlip_jax.trace_cache)
@@ -85,26 +86,3 @@ def prune(path: Path, budget: int = MAX_BYTES) -> int:
         f.with_name(f.name[:-len(ENTRY)] + STAMP).unlink(missing_ok=True)
         freed += size
     return freed
-
-
-def least_recently_used(files, budget: int, last_use: Callable[[os.stat_result], int],
-                        keep: Path | None = None) -> list[tuple[Path, int]]:
-    """(file, size) of the ``files`` to delete, least recently used first (``last_use`` of
-    their stat), so that the rest total at most ``budget`` bytes; ``keep`` is never chosen.
-    Files that vanish before their stat are left out (another process removed them)."""
-    entries = []
-    for f in files:
-        try:
-            st = f.stat()
-        except OSError:
-            continue
-        entries.append((last_use(st), st.st_size, f))
-    total = sum(size for _, size, _ in entries)
-    chosen = []
-    for _, size, f in sorted(entries):
-        if total <= budget:
-            break
-        if f != keep:
-            chosen.append((f, size))
-            total -= size
-    return chosen

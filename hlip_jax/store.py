@@ -56,7 +56,7 @@ from typing import Sequence
 import numpy as np
 
 from hlip_jax import steplog
-from hlip_jax.metrics import SUMMARY_METRICS, active_pushes, first_push, scenario_metrics
+from hlip_jax.metrics import SUMMARY_METRICS, active_pushes
 from hlip_jax import sweep as sweep_mod
 
 __all__ = [

@@ -52,7 +52,7 @@ import jax
 import numpy as np
 from jax import export as jax_export
 
-from hlip_jax import compile_cache
+from hlip_jax.cache_files import least_recently_used
 
 SUFFIX = ".hlotrace"
 MAX_BYTES = 512 * 2**20      # entries beyond this total are evicted, least recently used first
@@ -279,7 +279,7 @@ def _evict(keep: Path, budget: int) -> None:
     """Delete the least recently used entries of ``keep``'s directory (by modification time)
     until the entries total at most ``budget`` bytes; ``keep`` (just written) stays.  Best
     effort: entries another process removes or holds open are skipped."""
-    for f, _ in compile_cache.least_recently_used(keep.parent.glob("*" + SUFFIX), budget,
+    for f, _ in least_recently_used(keep.parent.glob("*" + SUFFIX), budget,
                                                   lambda st: st.st_mtime_ns, keep):
         f.unlink(missing_ok=True)
 
