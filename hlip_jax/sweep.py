@@ -243,7 +243,11 @@ def check_scalar(value, kind: str, meta: dict, where: str):
                                  f"{_allowed(meta, kind)}{doc}")
             value = int(value)
     else:
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:       # an integer beyond float's range
+            raise SweepError(f"{where}: an integer of {len(str(abs(value)))} digits is out of "
+                             f"range; allowed: {_allowed(meta, kind)}{doc}") from None
     lo, hi = meta.get("lo", -math.inf), meta.get("hi", math.inf)
     if not (lo <= value <= hi):
         raise SweepError(f"{where}: {_fmt(value)} is out of range; allowed: "
@@ -521,7 +525,7 @@ def _resolve_field(field: str, where: str) -> list:
         f = fields[key]
         keys.append(key)
         if key in LIST_ITEMS:
-            if i + 1 >= len(parts) or not parts[i + 1].isdigit():
+            if i + 1 >= len(parts) or not (parts[i + 1].isascii() and parts[i + 1].isdigit()):
                 first = next(iter(_fields(LIST_ITEMS[key])))
                 raise SweepError(f"{where}.{field!r}: list field '{prefix}{key}' needs an index "
                                  f"and a member, e.g. '{prefix}{key}.0.{first}'")
@@ -712,6 +716,9 @@ def _loads(text: str, source: str) -> dict:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise SweepError(f"{source}: not valid TOML: {err}") from None
+    except ValueError as err:       # an integer over Python's digit limit (4300 digits)
+        raise SweepError(f"{source}: a number is too long to read ({err}); allowed: numbers "
+                         "of at most 4300 digits") from None
     except RecursionError:
         raise SweepError(f"{source}: not valid TOML: tables or arrays nested too deeply; "
                          f"allowed: at most {MAX_DEPTH} levels") from None

@@ -343,3 +343,19 @@ def test_an_axis_of_too_many_values_is_refused_at_once():
     values = ", ".join(str(i) for i in range(sweep.MAX_AXIS_VALUES + 1))
     with pytest.raises(sweep.SweepError, match="at most 100000 per axis"):
         sweep.parse_sweep(f'[[paths]]\nshape = "line"\n[grid.product]\nseed = [{values}]\n')
+
+
+@pytest.mark.parametrize("text,frag", [
+    ('[base]\nduration = ' + "9" * 400 + '\n[[paths]]\nshape = "line"\n', "400 digits"),
+    ('[[paths]]\nshape = "circle"\nradius = ' + "9" * 400 + '\n', "400 digits"),
+    ('[base]\nseed = ' + "9" * 5000 + '\n[[paths]]\nshape = "line"\n', "too long to read"),
+    ('[base]\nduration = 10.0\n[[base.disturbance.pushes]]\ntime = 2.0\n[[paths]]\n'
+     'shape = "line"\n[grid.product]\n"disturbance.pushes.\u0660.force" = [100.0]\n',
+     "needs an index"),
+])
+def test_numbers_out_of_reach_and_non_ascii_indices_are_one_line(text, frag):
+    """An integer beyond float's range, one over Python's 4300-digit limit, and an Arabic-Indic
+    digit as a list index: each a SweepError naming what is wrong (they were tracebacks, or
+    for the digit a silently accepted index)."""
+    with pytest.raises(sweep.SweepError, match=frag):
+        sweep.parse_sweep(text)
