@@ -501,8 +501,14 @@ def cmd_coverage(args) -> int:
     settings = _coverage_settings(d, args)
     store.check_chunks(d)
     from hlip_jax import runner
+    train_on = _train_on(args.train_on)
     with runner.on_host():
-        path = store.write_coverage(d, settings, _train_on(args.train_on))
+        rows = store.coverage_rows(d, settings, train_on)
+    if train_on is not None and all(r["note"] in ("no test run", "no training run") for r in rows):
+        side = "test" if any(r["note"] == "no test run" for r in rows) else "training"
+        raise UserError(f"--train-on: {args.train_on!r} leaves no {side} run in any group; "
+                        f"{store.COVERAGE} is left as it was")
+    path = store.write_coverage_rows(d, rows)
     for r in store.read_coverage(d):
         if r["level"] == "run":
             print(f"{r['group']:<32} {r['plane']:<9} {r['w_method']:<15} {r['split']:<6} "

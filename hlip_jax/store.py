@@ -63,7 +63,7 @@ __all__ = [
     "StoreError", "LOG_FIELDS", "SUMMARY_METRICS", "chunk_ranges",
     "write_atomic", "save_npz_atomic", "read_manifest", "load_chunk", "load_log",
     "write_summary", "read_summary", "chunk_files", "write_coverage",
-    "read_coverage", "coverage_rows", "coverage_sets", "analysis_settings",
+    "read_coverage", "coverage_rows", "write_coverage_rows", "coverage_sets", "analysis_settings",
     "disturbance_samples", "results_lock", "inside", "chunk_problem", "check_chunks",
 ]
 
@@ -610,11 +610,16 @@ def coverage_sets(out_dir, split: str = "seed", settings=None) -> list[tuple]:
 def write_coverage(out_dir, settings=None, train_on: tuple | None = None) -> Path:
     """Write ``coverage.csv`` (columns :data:`hlip_jax.analysis.coverage.COLUMNS`) from the
     chunks (:func:`coverage_rows`)."""
+    return write_coverage_rows(out_dir, coverage_rows(out_dir, settings, train_on))
+
+
+def write_coverage_rows(out_dir, rows: list[dict]) -> Path:
+    """Write ``rows`` (of :func:`coverage_rows`) as the directory's ``coverage.csv``."""
     from hlip_jax.analysis import coverage as cov
     buf = io.StringIO()
     wr = csv.writer(buf, lineterminator="\n")
     wr.writerow(cov.COLUMNS)
-    for r in coverage_rows(out_dir, settings, train_on):
+    for r in rows:
         wr.writerow([_cell(r[c]) for c in cov.COLUMNS])
     p = Path(out_dir) / COVERAGE
     write_atomic(p, buf.getvalue())

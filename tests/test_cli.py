@@ -706,6 +706,11 @@ def test_coverage_command(tmp_path, tiny_sweep, capsys, fake_loop):
                         (["--warmup", "-2"], "--warmup")):
         code, _, err = cli(capsys, "coverage", out, *args)
         assert code == 2 and field in err and "Traceback" not in err
+    # every path on the training side: no test run anywhere, one line, the file kept
+    before = (out / "coverage.csv").read_bytes()
+    code, _, err = cli(capsys, "coverage", out, "--train-on", "path=circle,line")
+    assert "leaves no test run" in _one_line_error(code, err)
+    assert (out / "coverage.csv").read_bytes() == before
     code, _, err = cli(capsys, "coverage", tmp_path / "missing")
     assert code == 2 and "not found" in err
 
