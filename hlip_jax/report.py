@@ -747,12 +747,23 @@ def _tick_section(doc: "_Doc", out: Path) -> None:
           "torques, contact forces, CLF-QP status and phase, and the COM-height acceleration "
           "the CLF-QP's model predicts beside the measured one (tick logs: ticks/INDEX.npz).")
     for p in logs:
-        meta = json.loads(p.read_text())
+        try:
+            meta = json.loads(p.read_text(encoding="utf-8"))
+        except ValueError as err:            # JSONDecodeError and UnicodeDecodeError
+            meta = str(err)
+        if not isinstance(meta, dict) or not TICK_KEYS <= meta.keys():
+            raise ReportError(f"{p}: not a per-tick record (expected an object with "
+                              f"{', '.join(sorted(TICK_KEYS))}); replay the scenario again "
+                              "with `hlip-sweep ticks`")
         how = "within its chunk" if meta["within"] == "chunk" else "alone"
         said = tick_report.verdict(tick_report.Agreement(
             meta["identical"], meta["first_step"], meta["largest"]))
         doc.p(f"#{p.stem} {meta['name']}: replayed {how}: {said}.")
         doc.img(f"ticks/{p.stem}.png", f"per-tick log of {meta['name']}")
+
+
+#: the fields the report reads from a per-tick record (ticks/INDEX.json)
+TICK_KEYS = frozenset(("within", "name", "identical", "first_step", "largest"))
 
 
 def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Path, Path]:

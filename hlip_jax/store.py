@@ -632,7 +632,22 @@ def read_coverage(out_dir) -> list[dict]:
     p = Path(out_dir) / COVERAGE
     if not p.is_file():
         raise StoreError(f"{out_dir}: no {COVERAGE}")
-    return _read_csv(p)
+    try:
+        rows = _read_csv(p)
+        with open(p, newline="", encoding="utf-8") as fh:
+            head = next(csv.reader(fh), [])
+    except (csv.Error, UnicodeDecodeError, OSError) as err:
+        raise StoreError(f"{p}: unreadable ({err}); rewrite it with `hlip-sweep coverage "
+                         f"{out_dir}`") from None
+    missing = [c for c in COVERAGE_KEYS if c not in head]
+    if missing:
+        raise StoreError(f"{p}: not a coverage table of this version (no column "
+                         f"{missing[0]!r}); rewrite it with `hlip-sweep coverage {out_dir}`")
+    return rows
+
+
+#: the columns every reader of coverage.csv needs
+COVERAGE_KEYS = ("group", "plane", "w_method", "level")
 
 
 

@@ -920,3 +920,20 @@ def test_a_summary_cut_to_its_header_is_refused_and_rewritten_once_deleted(tmp_p
     code, _, err = cli(capsys, "report", out)
     assert code == 0, err
     assert (out / "summary.csv").read_text() == whole
+
+
+@pytest.mark.parametrize("name,data,frag", [
+    ("coverage.csv", b"garbage,,x\n", "not a coverage table"),
+    ("coverage.csv", b"a\x00b\n", "rewrite it with"),
+    ("coverage.csv", b"\xff\xfe\x00", "rewrite it with"),
+    ("ticks/3.json", b"{garbage", "not a per-tick record"),
+    ("ticks/3.json", b"[1, 2]", "not a per-tick record"),
+])
+def test_damaged_results_files_are_one_line(name, data, frag, tmp_path, tiny_sweep, capsys,
+                                            fake_loop):
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    (out / name).parent.mkdir(exist_ok=True)
+    (out / name).write_bytes(data)
+    code, _, err = cli(capsys, "report", out)
+    assert frag in _one_line_error(code, err) and name.split("/")[-1] in err
