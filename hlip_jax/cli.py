@@ -357,7 +357,7 @@ def _load(args):
 
 
 def cmd_run(args) -> int:
-    from hlip_jax import report, runner
+    from hlip_jax import report, runner, store
     _use_cache(args)               # before anything compiles: JAX reads it at the first compile
     sw = _load(args)
     if args.out is not None and not args.out.strip():
@@ -382,7 +382,7 @@ def cmd_run(args) -> int:
         _init_distributed(jax)
         if jax.process_index() != 0:
             # the others compute their shards and keep a private copy of the store
-            out = out / f".process-{jax.process_index()}"
+            out = out / store.PROCESS_STORE.format(jax.process_index())
             args.no_report = True
             args.quiet = True
     if not args.quiet:

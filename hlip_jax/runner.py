@@ -164,7 +164,10 @@ def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, 
         raise store.StoreError(f"--resume: {out} holds no run to resume (no {store.MANIFEST}); "
                                "drop --resume to start one")
     if old is None:
-        foreign = sorted(p.name for p in out.iterdir() if p.name != store.LOCK)
+        # the lock, and the private stores other processes of a --distributed run keep here
+        prefix = store.PROCESS_STORE.format("")
+        foreign = sorted(p.name for p in out.iterdir()
+                         if p.name != store.LOCK and not p.name.startswith(prefix))
         if foreign:
             raise store.StoreError(f"--out {out}: a directory that is not a results directory "
                                    f"(no {store.MANIFEST}; it holds {foreign[0]!r}"

@@ -68,6 +68,8 @@ __all__ = [
 ]
 
 MANIFEST = "manifest.json"
+#: the private store of process N of a `--distributed` run, inside process 0's --out
+PROCESS_STORE = ".process-{}"
 LOCK = ".lock"              # held (flock) by the run writing the directory; names its pid
 SUMMARY = "summary.csv"
 CHUNK_DIR = "chunks"
@@ -451,9 +453,15 @@ def read_summary(out_dir) -> list[dict]:
 
 
 def _read_csv(p: Path) -> list[dict]:
+    return _read_csv_table(p)[1]
+
+
+def _read_csv_table(p: Path) -> tuple[list[str], list[dict]]:
+    """(the header, the rows as dicts with numbers parsed where they parse) of a CSV file."""
     rows = []
-    with open(p, newline="") as fh:
-        for r in csv.DictReader(fh):
+    with open(p, newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        for r in reader:
             out = {}
             for k, v in r.items():
                 try:
@@ -464,7 +472,8 @@ def _read_csv(p: Path) -> list[dict]:
                     except ValueError:
                         out[k] = v
             rows.append(out)
-    return rows
+        head = list(reader.fieldnames or [])
+    return head, rows
 
 
 # --------------------------------------------------------------------------------------------
@@ -633,9 +642,7 @@ def read_coverage(out_dir) -> list[dict]:
     if not p.is_file():
         raise StoreError(f"{out_dir}: no {COVERAGE}")
     try:
-        rows = _read_csv(p)
-        with open(p, newline="", encoding="utf-8") as fh:
-            head = next(csv.reader(fh), [])
+        head, rows = _read_csv_table(p)
     except (csv.Error, UnicodeDecodeError, OSError) as err:
         raise StoreError(f"{p}: unreadable ({err}); rewrite it with `hlip-sweep coverage "
                          f"{out_dir}`") from None

@@ -602,6 +602,27 @@ def test_resume_and_overwrite_together(tmp_path, tiny_sweep, capsys, fake_loop):
     assert "exclude each other" in _one_line_error(code, err)
 
 
+def _run_two_processes(sw, out, timeout: int) -> None:
+    """`hlip-sweep run SWEEP --distributed` as two processes of one CPU device each on this
+    host (jax.distributed through JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES /
+    JAX_PROCESS_ID, a free port), both asserted to exit 0."""
+    import socket
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COORDINATOR_ADDRESS=f"localhost:{port}",
+               JAX_NUM_PROCESSES="2", MPLBACKEND="Agg",
+               XLA_FLAGS="--xla_force_host_platform_device_count=1")
+    env.pop("HLIP_SWEEP_SIMULATE", None)
+    cmd = [sys.executable, "-m", "hlip_jax.cli", "run", str(sw), "--out", str(out),
+           "--no-report", "--quiet", "--distributed"]
+    procs = [subprocess.Popen(cmd, env=dict(env, JAX_PROCESS_ID=str(i)), cwd=ROOT, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE) for i in (0, 1)]
+    for p in procs:
+        _, err = p.communicate(timeout=timeout)
+        assert p.returncode == 0, err
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_two_process_distributed_run_equals_one_process(tmp_path):
@@ -609,7 +630,6 @@ def test_two_process_distributed_run_equals_one_process(tmp_path):
     one-process run has: the numbers depend on the scenarios per device; jax.distributed
     through JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES / JAX_PROCESS_ID) writes the same
     chunks and summary as one process (the real H-LIP closed loop, 4 scenarios of 2 s)."""
-    import socket
     sw = tmp_path / "dist.toml"
     sw.write_text('[base]\nduration = 2.0\n[[paths]]\nshape = "line"\n[grid.product]\n'
                   '"gain.type" = ["deadbeat", "lqr"]\n"mpc.alpha" = [0.01, 0.1]\n')
@@ -617,19 +637,7 @@ def test_two_process_distributed_run_equals_one_process(tmp_path):
     one = hs("run", sw, "--out", tmp_path / "one", "--no-report", "--quiet", fake=False,
              env={"XLA_FLAGS": one_device})
     assert one.returncode == 0, one.stderr
-    with socket.socket() as s:
-        s.bind(("localhost", 0))
-        port = s.getsockname()[1]
-    env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COORDINATOR_ADDRESS=f"localhost:{port}",
-               JAX_NUM_PROCESSES="2", MPLBACKEND="Agg", XLA_FLAGS=one_device)
-    env.pop("HLIP_SWEEP_SIMULATE", None)
-    cmd = [sys.executable, "-m", "hlip_jax.cli", "run", str(sw), "--out", str(tmp_path / "two"),
-           "--no-report", "--quiet", "--distributed"]
-    procs = [subprocess.Popen(cmd, env=dict(env, JAX_PROCESS_ID=str(i)), cwd=ROOT, text=True,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE) for i in (0, 1)]
-    for p in procs:
-        _, err = p.communicate(timeout=500)
-        assert p.returncode == 0, err
+    _run_two_processes(sw, tmp_path / "two", timeout=500)
     for f in sorted((tmp_path / "one" / "chunks").iterdir()):
         assert f.read_bytes() == (tmp_path / "two" / "chunks" / f.name).read_bytes(), f.name
     assert ((tmp_path / "one" / "summary.csv").read_bytes()
@@ -644,27 +652,13 @@ def test_two_process_distributed_cassie_equals_one_process_of_two_devices(tmp_pa
     the same step logs, bit for bit.  Before MJX's model was put on each process's own device
     (hlip_jax.plants.cassie.model.put), the second process failed to compile the closed loop
     (its model lived on process 0's device)."""
-    import socket
     sw = tmp_path / "dist.toml"
     sw.write_text('[base]\nplant = "cassie"\nduration = 0.6\n[[paths]]\nshape = "line"\n'
                   '[grid.product]\nseed = [1, 2, 3, 4]\n')
     one = hs("run", sw, "--out", tmp_path / "one", "--no-report", "--quiet", fake=False,
              timeout=800, env={"XLA_FLAGS": "--xla_force_host_platform_device_count=2"})
     assert one.returncode == 0, one.stderr
-    with socket.socket() as s:
-        s.bind(("localhost", 0))
-        port = s.getsockname()[1]
-    env = dict(os.environ, JAX_PLATFORMS="cpu", JAX_COORDINATOR_ADDRESS=f"localhost:{port}",
-               JAX_NUM_PROCESSES="2", MPLBACKEND="Agg",
-               XLA_FLAGS="--xla_force_host_platform_device_count=1")
-    env.pop("HLIP_SWEEP_SIMULATE", None)
-    cmd = [sys.executable, "-m", "hlip_jax.cli", "run", str(sw), "--out", str(tmp_path / "two"),
-           "--no-report", "--quiet", "--distributed"]
-    procs = [subprocess.Popen(cmd, env=dict(env, JAX_PROCESS_ID=str(i)), cwd=ROOT, text=True,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE) for i in (0, 1)]
-    for p in procs:
-        _, err = p.communicate(timeout=800)
-        assert p.returncode == 0, err
+    _run_two_processes(sw, tmp_path / "two", timeout=800)
     a, b = store.load_log(tmp_path / "one"), store.load_log(tmp_path / "two")
     assert a["status"].tolist() == b["status"].tolist() == [0, 0, 0, 0]
     for k in ("x_robot", "u_robot", "e", "valid", "t_plant"):
@@ -863,6 +857,10 @@ def test_out_that_is_not_a_results_directory_and_resume_without_a_run(tmp_path, 
     assert (mine / "summary.csv").read_text() == "my own data\n"
     code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "new", "--resume", "--quiet")
     assert "no run to resume" in _one_line_error(code, err)
+    # process 0 of a --distributed run finds the other processes' private stores already there
+    dist = tmp_path / "dist"
+    (dist / ".process-1" / "chunks").mkdir(parents=True)
+    _run_ok(capsys, tiny_sweep, dist)
     out = tmp_path / "o"
     _run_ok(capsys, tiny_sweep, out)
     for name in ("figures", "ticks"):
