@@ -195,7 +195,8 @@ def fig_invariant(an, runs, path: Path, title: str) -> None:
 
 def plane_names(frame: str) -> tuple[str, str]:
     """Row labels of the two analysis planes for ``frame`` ("heading" or "world")."""
-    return (("sagittal", "lateral") if frame == "heading" else ("world x", "world y"))
+    from hlip_jax.analysis import coverage as cov
+    return cov.PLANES[frame]
 
 
 def _coverage_rows(an, n_runs: int, row_summary: dict | None,

@@ -229,6 +229,12 @@ def _facets(S):
                     f"{type(S).__name__}")
 
 
+def center(S) -> np.ndarray:
+    """The centre c about which :func:`gauge` and :class:`Scaled` measure and scale S (n,):
+    a box's or zonotope's centre, a hull's vertex mean, a template polytope's centre."""
+    return _facets(S)[2]
+
+
 def gauge(S, points) -> np.ndarray:
     """The scale of each point relative to the polytope S about S's centre c:
 
@@ -259,7 +265,7 @@ class Scaled(NamedTuple):
     def support(self, directions):
         """h(d) = dᵀc + s (h_S(d) − dᵀc)."""
         D = _f64(directions)
-        dc = D @ _facets(self.base)[2]
+        dc = D @ center(self.base)
         return dc + self.s * (_f64(self.base.support(D)) - dc)
 
     def contains(self, points, tol: float = 1e-9):
@@ -619,7 +625,7 @@ def _hpoly_vertices(N: np.ndarray, b: np.ndarray, interior: np.ndarray) -> np.nd
 def vertices(S) -> np.ndarray:
     """Vertices (k, n) of a Box, Zonotope, Hull, TemplatePolytope, MRPI (outer set) or Scaled."""
     if isinstance(S, Scaled):
-        c = _facets(S.base)[2]
+        c = center(S.base)
         return c + S.s * (vertices(S.base) - c)
     if isinstance(S, MRPI):
         S = S.outer

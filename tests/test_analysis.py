@@ -140,11 +140,11 @@ def test_gauge_is_one_on_the_boundary_and_matches_membership(kind):
     W = sets.Box(np.array([-0.01, -0.02, -0.03]), np.array([0.02, 0.02, 0.01]))
     S = {"box": W, "zonotope": inv.mrpi(A, W).outer,
          "hull": inv.estimate_w(rng.normal(size=(50, 3)), method="hull")}[kind]
-    pts = rng.normal(size=(4000, 3)) * 0.05 + np.asarray(sets._facets(S)[2])
+    pts = rng.normal(size=(4000, 3)) * 0.05 + sets.center(S)
     g = sets.gauge(S, pts)
     np.testing.assert_array_equal(g <= 1 + 1e-9, np.asarray(S.contains(pts, 1e-9)))
     # a point scaled onto the boundary about the centre has gauge 1 (to 1e-12)
-    c = sets._facets(S)[2]
+    c = sets.center(S)
     on = c + (pts[:20] - c) / g[:20, None]
     np.testing.assert_allclose(sets.gauge(S, on), 1.0, atol=1e-12)
     half = sets.Scaled(S, 0.5)

@@ -119,15 +119,26 @@ def _level_rows(E, train, test, p: int) -> tuple[dict, dict]:
     return run, step
 
 
+def _pooled(runs, p: int, which: str) -> np.ndarray:
+    parts = [r.kept_d(p) if which == "d" else r.kept_e(p) for r in runs]
+    return np.concatenate(parts) if parts else np.zeros((0, 1))
+
+
+def _fit(name: str, A_cl, train: Sequence[RunErrors], p: int, q: float):
+    """(W, E, training samples) of method ``name`` on plane p (A_cl (n, n)): W from the kept
+    disturbances of the training runs that walked, a calibration over every training run."""
+    d = _pooled([r for r in train if not r.fell], p, "d")
+    W, E = estimators.fit(name, A_cl, d, [r.kept_e(p) for r in train],
+                          [r.fell for r in train], q)
+    return W, E, d.shape[0]
+
+
 def plane_rows(A_cl, train, test, p: int, name: str, q: float) -> list[dict]:
     """The run-level and step-level rows' statistics of plane p, one method (the shared
     columns filled by :func:`group_rows`)."""
     dim = A_cl.shape[-1]
-    walked = [r for r in train if not r.fell]
-    d = np.concatenate([r.kept_d(p) for r in walked]) if walked else np.zeros((0, dim))
-    W, E = estimators.fit(name, A_cl, d, [r.kept_e(p) for r in train],
-                          [r.fell for r in train], q)
-    common = {"train_samples": d.shape[0], "state": "[c, p, v]" if dim == 3 else "[p, v]",
+    W, E, n_w = _fit(name, A_cl, train, p, q)
+    common = {"train_samples": n_w, "state": "[c, p, v]" if dim == 3 else "[p, v]",
               **_sizes(W, E, dim), **_err_stats(test, p, dim, q)}
     run, step = _level_rows(E, train, test, p)
     return [dict(common, level="run", **run), dict(common, level="step", **step)]
@@ -149,11 +160,6 @@ class PlaneConsistency(NamedTuple):
 class Consistency(NamedTuple):
     """``planes``: (sagittal or world x, lateral or world y) :class:`PlaneConsistency`."""
     planes: tuple
-
-
-def _pooled(runs, p: int, which: str) -> np.ndarray:
-    parts = [r.kept_d(p) if which == "d" else r.kept_e(p) for r in runs]
-    return np.concatenate(parts) if parts else np.zeros((0, 1))
 
 
 def consistency(A_cl, runs: Sequence[RunErrors]) -> Consistency:
@@ -183,17 +189,15 @@ def fitted_sets(A_cl, runs: Sequence[RunErrors], keys: Sequence, q: float):
     :func:`group_rows` splits them (alternate values of ``keys``)."""
     tr, te = splits.interleave(keys)
     train, test = [runs[i] for i in tr], [runs[i] for i in te]
-    walked = [r for r in train if not r.fell]
     out = []
     for p in range(A_cl.shape[0]):
-        d = np.concatenate([r.kept_d(p) for r in walked])
-        e_tr, fell = [r.kept_e(p) for r in train], [r.fell for r in train]
-        E_box = estimators.fit("box", A_cl[p], d, e_tr, fell, q)[1]
-        try:
-            E_q = estimators.fit("conformal_run", A_cl[p], d, e_tr, fell, q)[1]
+        E_box = _fit("box", A_cl[p], train, p, q)[1]
+        try:        # conformal_run's E_shape is this E_box: calibrate it, not a second mRPI
+            E_q = estimators.calibrate(E_box, estimators.run_scores(
+                E_box, [r.kept_e(p) for r in train], [r.fell for r in train]), q)
         except ValueError:
             E_q = None
-        out.append((E_box, E_q, np.concatenate([r.kept_e(p) for r in test])))
+        out.append((E_box, E_q, _pooled(test, p, "e")))
     return out
 
 
