@@ -626,16 +626,17 @@ def _run_two_processes(sw, out, timeout: int) -> None:
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_two_process_distributed_run_equals_one_process(tmp_path):
-    """`--distributed` with two processes on this host (one CPU device each, as the
-    one-process run has: the numbers depend on the scenarios per device; jax.distributed
+    """`--distributed` with two processes on this host (one CPU device each; jax.distributed
     through JAX_COORDINATOR_ADDRESS / JAX_NUM_PROCESSES / JAX_PROCESS_ID) writes the same
-    chunks and summary as one process (the real H-LIP closed loop, 4 scenarios of 2 s)."""
+    chunks and summary as one process of two CPU devices (the same two scenarios per device:
+    in float32 the numbers depend on the scenarios per device; the real H-LIP closed loop, 4
+    scenarios of 2 s)."""
     sw = tmp_path / "dist.toml"
     sw.write_text('[base]\nduration = 2.0\n[[paths]]\nshape = "line"\n[grid.product]\n'
                   '"gain.type" = ["deadbeat", "lqr"]\n"mpc.alpha" = [0.01, 0.1]\n')
-    one_device = "--xla_force_host_platform_device_count=1"     # not one per core
+    two_devices = "--xla_force_host_platform_device_count=2"
     one = hs("run", sw, "--out", tmp_path / "one", "--no-report", "--quiet", fake=False,
-             env={"XLA_FLAGS": one_device})
+             env={"XLA_FLAGS": two_devices})
     assert one.returncode == 0, one.stderr
     _run_two_processes(sw, tmp_path / "two", timeout=500)
     for f in sorted((tmp_path / "one" / "chunks").iterdir()):
