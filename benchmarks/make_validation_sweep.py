@@ -1,7 +1,7 @@
 """Writes sweeps/cassie_validation.toml: the validation set of docs/cassie_protocol (pushes,
 noise, speed x turn-rate circles) as one sweep of explicit scenarios, so that the whole set
 runs in one compiled call.  The straight-line speeds and the in-place runs, which last 30-60 s,
-are sweeps/cassie_speeds_val.toml.
+are docs/experiments/cassie_speeds_val.toml.
 
     python benchmarks/make_validation_sweep.py
 """

@@ -1,7 +1,7 @@
 """Per-path table of a tube sweep's results and the share of its tube steps whose disturbance
 lies outside a hull W (docs/robust_mpc.md, attempts 4 and 5).
 
-    python benchmarks/tube_runs.py RESULTS_DIR sweeps/data/cassie_tube_hull.csv
+    python benchmarks/tube_runs.py RESULTS_DIR docs/experiments/data/cassie_tube_hull.csv
 
 Rows: nominal / tube (the scenario's ``mpc.robust``) × path (× peak speed where swept): runs
 that walked, runs whose COM entered a disc at an impact (``min_clearance`` < 0), the smallest

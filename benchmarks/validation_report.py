@@ -3,7 +3,7 @@
     python benchmarks/validation_report.py VALIDATION_DIR [SPEEDS_DIR] --figure FIG.png
 
 VALIDATION_DIR holds a run of sweeps/cassie_validation.toml, SPEEDS_DIR one of
-sweeps/cassie_speeds_val.toml.  Prints Markdown: success rates with 95 % Clopper–Pearson
+docs/experiments/cassie_speeds_val.toml.  Prints Markdown: success rates with 95 % Clopper–Pearson
 intervals (pushes by force and side, with recovery = back within 0.15 m of the path within 10
 steps and staying there; noisy runs by path; the speed × radius envelope), and for the
 speed runs the mean forward speed on the plant's clock over the constant-speed part against

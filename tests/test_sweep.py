@@ -18,6 +18,9 @@ from hlip_jax import sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = sorted((ROOT / "sweeps").glob("*.toml"))
+# the experiments the docs cite: run from the checkout, not shipped in the wheel
+EXPERIMENTS = sorted((ROOT / "docs" / "experiments").glob("*.toml"))
+MAX_SHIPPED = 12   # each shipped sweep a user's question (issue 53)
 BROKEN = sorted((Path(__file__).parent / "sweeps_broken").glob("*.toml"))
 
 
@@ -31,7 +34,8 @@ def test_corpus_is_large_enough():
     assert all(_expects(p) for p in BROKEN), "every broken file states its expected message"
 
 
-@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", SHIPPED + EXPERIMENTS,
+                         ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_shipped_sweeps_validate(path):
     sw = sweep.load_sweep(path)
     assert sw.name == path.stem
@@ -41,6 +45,19 @@ def test_shipped_sweeps_validate(path):
     assert len(set(names)) == len(names), "scenario names are unique"
     n_grid = math.prod(len(a) for a in sw.axes) if sw.axes else 1
     assert sw.total == len(sw.paths) * n_grid
+
+
+def test_shipped_and_experiment_sweeps_are_listed():
+    """At most MAX_SHIPPED sweeps ship, each a row of sweeps/README.md's table; every experiment
+    is a row of docs/experiments/README.md's; no name is both (``hlip-sweep run NAME`` would
+    find only the shipped one)."""
+    assert 1 <= len(SHIPPED) <= MAX_SHIPPED and EXPERIMENTS
+    for files, readme in ((SHIPPED, ROOT / "sweeps" / "README.md"),
+                          (EXPERIMENTS, ROOT / "docs" / "experiments" / "README.md")):
+        rows = [ln for ln in readme.read_text().splitlines() if ln.startswith("| `")]
+        missing = [p.name for p in files if not any(f"`{p.name}`" in r for r in rows)]
+        assert not missing, f"{readme.relative_to(ROOT)} lists no row for {missing}"
+    assert not {p.name for p in SHIPPED} & {p.name for p in EXPERIMENTS}
 
 
 def test_paper_sweep_contents():
@@ -273,11 +290,12 @@ def test_extends_needs_a_file():
         sweep.parse_sweep('extends = "paper.toml"')
 
 
-def test_shipped_replicates_extend_the_paper():
-    """paper_replicates.toml states only what differs from paper.toml: every scenario is the
-    paper's scenario of the same path with the seed, duration and step noise changed."""
+def test_replicates_extend_the_paper():
+    """docs/experiments/paper_replicates.toml states only what differs from sweeps/paper.toml
+    (``extends`` across folders): every scenario is the paper's scenario of the same path with
+    the seed, duration and step noise changed."""
     paper = {c.name: c for c in sweep.load_sweep(ROOT / "sweeps" / "paper.toml").scenarios}
-    reps = sweep.load_sweep(ROOT / "sweeps" / "paper_replicates.toml").scenarios
+    reps = sweep.load_sweep(ROOT / "docs" / "experiments" / "paper_replicates.toml").scenarios
     assert len(reps) == 8 * len(paper)
     for c in reps:
         ref = paper[c.swept["path"]]
