@@ -73,13 +73,17 @@ def _ci(r: dict) -> str:
 
 
 W_NAMES = {"box": "mRPI, box W", "hull": "mRPI, hull W", "conformal_step": "mRPI, step q-box",
-           "conformal_run": "run-calibrated E_q"}
+           "conformal_run": "E_q, mRPI shape", "conformal_box": "E_q, box"}
+
+#: the methods the tables show (the step q-box stays in coverage.csv)
+TABLE_METHODS = ("box", "conformal_run", "conformal_box")
 
 
 def coverage_table(path: pathlib.Path, split: str) -> list[str]:
-    """The run-level rows of ``coverage.csv`` at ``path`` for one split, with the step-level
-    coverage beside them and E's half-width along c against the test runs' largest |e_c|."""
-    rows = _read(path)
+    """The run-level rows of ``coverage.csv`` at ``path`` for one split and the methods of
+    :data:`TABLE_METHODS`, with the step-level coverage beside them and E's half-width along c
+    against the test runs' largest |e_c|."""
+    rows = [r for r in _read(path) if r["w_method"] in TABLE_METHODS]
     steps = {(r["group"], r["plane"], r["w_method"]): r for r in rows
              if r["level"] == "step" and r["split"] == split}
     out = ["| group | plane | E | train (fell) / test (fell) runs | runs covered [95 % CI] | "
@@ -100,13 +104,13 @@ def coverage_table(path: pathlib.Path, split: str) -> list[str]:
 
 
 def headline(path: pathlib.Path, q: float = 0.9) -> list[str]:
-    """One line per split: the range of the run-calibrated set's run-level coverage, how many
-    rows lie in [q − 0.05, q + 0.08], and the range of E_q's c half-width over the largest
-    held-out |e_c|; then the same ratio for the box W's mRPI set."""
+    """One line per split and method of :data:`TABLE_METHODS` (calibrated sets first): the range
+    of the run-level coverage, how many rows lie in [q − 0.05, q + 0.08], and the range of E's
+    c half-width over the largest held-out |e_c|."""
     rows = [r for r in _read(path) if r["level"] == "run" and r["coverage"] not in ("", "nan")]
     out = []
     for split in dict.fromkeys(r["split"] for r in rows):
-        for m in ("conformal_run", "box"):
+        for m in reversed(TABLE_METHODS):
             sel = [r for r in rows if r["split"] == split and r["w_method"] == m]
             if not sel:
                 continue
@@ -120,14 +124,37 @@ def headline(path: pathlib.Path, q: float = 0.9) -> list[str]:
     return out
 
 
+def figure(results: pathlib.Path, group: str, png: str) -> None:
+    """The report's figure (:func:`hlip_jax.report.fig_coverage_sets`) of one group of the seed
+    split: held-out errors against the box W's mRPI set and the run-calibrated box E_q."""
+    from hlip_jax import report
+    from hlip_jax.analysis import coverage
+    found = {label: (frame, sets_) for label, frame, sets_ in store.coverage_sets(results)}
+    if group not in found:
+        raise SystemExit(f"--figure: group {group!r}; allowed: {', '.join(found)}")
+    frame, sets_ = found[group]
+    report.fig_coverage_sets(coverage.PLANES[frame], sets_, pathlib.Path(png),
+                             f"{group} (seed split)")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("results", type=pathlib.Path, help="results directory of a coverage study")
+    ap.add_argument("--headline-only", action="store_true",
+                    help="the walked table and the headline lines, no per-split tables")
+    ap.add_argument("--figure", nargs=2, metavar=("GROUP", "PNG"),
+                    help="also draw the report's figure of GROUP (seed split) into PNG")
     a = ap.parse_args(argv)
+    if a.figure:
+        figure(a.results, *a.figure)
     lines = walked_table(store.read_summary(a.results)) + [""]
     lines += headline(a.results / "coverage.csv") + [""]
+    if a.headline_only:
+        print("\n".join(lines))
+        return
     for split in dict.fromkeys(r["split"] for r in _read(a.results / "coverage.csv")):
-        lines += [f"Split: {split}", ""] + coverage_table(a.results / "coverage.csv", split) + [""]
+        lines += [f"### Split: {split}", ""]
+        lines += coverage_table(a.results / "coverage.csv", split) + [""]
     print("\n".join(lines))
 
 

@@ -241,7 +241,8 @@ ACROSS_HEAD = ["group", "split", "plane", "E", "runs train / test", "runs covere
                "c [m]: E / q-quantile / max", "p [m]: E / q-quantile / max",
                "v [m/s]: E / q-quantile / max"]
 W_LABELS = {"box": "mRPI of box W", "hull": "mRPI of hull W",
-            "conformal_step": "mRPI of conformal step box", "conformal_run": "run-calibrated"}
+            "conformal_step": "mRPI of conformal step box",
+            "conformal_run": "run-calibrated mRPI shape", "conformal_box": "run-calibrated box"}
 
 
 def _ci_text(r: dict) -> str:
@@ -283,10 +284,12 @@ def across_run_rows(cov_rows: list[dict]) -> list[list[str]]:
 ACROSS_NOTE = (
     "What is guaranteed. A test run counts as covered when it did not fall and every kept "
     "pre-impact error of it lies in E; the interval is Clopper–Pearson over runs, the unit of "
-    "independence (steps of one run are correlated). 'run-calibrated' is the run-level "
-    "conformal set: E_shape = mRPI(A + BK, box W of the training runs), each training run "
-    "scored by the smallest scale of E_shape that holds all its kept errors (a fall scores "
-    "infinity), E_q = the ⌈(n+1)q⌉-th smallest score times E_shape; a new run drawn "
+    "independence (steps of one run are correlated). The 'run-calibrated' sets are run-level "
+    "conformal sets: a shape E_shape fitted on half of the training runs ('box': the box of "
+    "their errors, about as wide in each coordinate as their errors reach; 'mRPI shape': "
+    "mRPI(A + BK, box W of their disturbances)), each other training run scored by the "
+    "smallest scale of E_shape that holds all its kept errors (a fall scores infinity), "
+    "E_q = the ⌈(n+1)q⌉-th smallest of the n scores times E_shape; a new run drawn "
     "exchangeably with the training runs stays in E_q with probability ≥ q. The split says "
     "what exchangeable means here: 'seed' (other noise draws of the same paths and speeds) "
     "gives it; 'path' and 'speed' hold out paths or speeds that no training run walked, "
@@ -306,7 +309,7 @@ def _projections(dim: int) -> list[tuple[int, int]]:
 
 def fig_coverage_sets(planes, fitted, path: Path, title: str) -> None:
     """One row per plane, one panel per 2-D projection of the state: the test runs' kept
-    errors (points), the box W's mRPI set (light) and the run-calibrated E_q (dark outline)."""
+    errors (points), the box W's mRPI set (light) and the run-calibrated box E_q (dark)."""
     plt = _plt()
     dims = _projections(fitted[0][0].dim)
     fig, axes = plt.subplots(len(fitted), len(dims), figsize=(3.6 * len(dims), 3.2 * len(fitted)),
@@ -322,7 +325,8 @@ def fig_coverage_sets(planes, fitted, path: Path, title: str) -> None:
             ax.scatter(e[:, a], e[:, b], s=2, c="k", alpha=0.4)
             ax.set_xlabel(lab[a]), ax.set_ylabel(lab[b])
             ax.set_title(f"{plane}", fontsize=9)
-    fig.suptitle(title + " — held-out errors, mRPI of box W (blue), run-calibrated E_q (orange)",
+    fig.suptitle(title + " — held-out errors, mRPI of box W (blue), run-calibrated box E_q "
+                 "(orange)",
                  fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
@@ -497,9 +501,14 @@ class _Doc:
     def img(self, src, alt):
         self.parts.append(("img", src, alt))
 
+    def video(self, src, alt):
+        """A video file (path relative to the report, not embedded) and its link."""
+        self.parts.append(("video", src, alt))
+
     def html(self, title, base: Path) -> str:
         """One self-contained HTML file: figures (paths relative to ``base``) embedded as
-        base64 data URIs, wide tables scroll inside their box, marked rows in red."""
+        base64 data URIs (videos only linked), wide tables scroll inside their box, marked
+        rows in red."""
         out = ["<!DOCTYPE html>", "<html><head><meta charset='utf-8'>",
                f"<title>{html.escape(title)}</title>",
                "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;"
@@ -517,6 +526,11 @@ class _Doc:
             elif part[0] == "img":
                 out.append(f"<div><img src='{_data_uri(base / part[1])}' "
                            f"alt='{html.escape(part[2])}'></div>")
+            elif part[0] == "video":
+                src = html.escape(part[1])
+                out.append(f"<div><video controls muted loop preload='metadata' src='{src}' "
+                           f"style='max-width:100%'></video><br><a href='{src}'>"
+                           f"{html.escape(part[2])}</a></div>")
             else:
                 out.append("<div class='wide'><table><tr>"
                            + "".join(f"<th>{html.escape(str(c))}</th>" for c in part[1]) + "</tr>")
@@ -537,6 +551,8 @@ class _Doc:
                 out.append(part[1] + "\n")
             elif part[0] == "img":
                 out.append(f"![{part[2]}]({part[1]})\n")
+            elif part[0] == "video":
+                out.append(f"[video: {part[2]}]({part[1]})\n")
             else:
                 esc = lambda c: str(c).replace("|", "\\|")  # noqa: E731
                 out.append("| " + " | ".join(esc(c) for c in part[1]) + " |")
@@ -545,6 +561,12 @@ class _Doc:
                     out.append("| " + " | ".join(esc(c) for c in r) + " |")
                 out.append("")
         return "\n".join(out) + "\n"
+
+
+def representatives(man: dict, rows: list[dict]) -> dict[str, int]:
+    """{path name: the index of the scenario the report shows for it} (its first scenario
+    that finished ok, else its first)."""
+    return {p: int(rep["index"]) for p, (rep, _) in _representatives(man, rows).items()}
 
 
 def _representatives(man, rows):
@@ -639,6 +661,7 @@ def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
     doc.img(f"figures/{slug}_time.png", f"{pname} position and velocity")
     fig_steps(one, fig_dir / f"{slug}_steps.png", label)
     doc.img(f"figures/{slug}_steps.png", f"{pname} step sizes")
+    _strip(doc, out, idx, cfg["name"])
 
     # runs of this path with the representative's S2S model and gain
     mats0 = _plane_mats(log, pos[idx])
@@ -721,6 +744,7 @@ def _closing_sections(doc: "_Doc", man: dict, rows: list[dict], fig_dir: Path, h
                     else int(r["push_recovery_steps"])] for r in pushed[:MAX_TABLE_ROWS]])
 
     _tick_section(doc, fig_dir.parent)
+    _video_section(doc, fig_dir.parent, man)
 
     doc.h(2, "Per-scenario summary")
     cols = ["index", "name", "status", "rms_track_err", "max_track_err", "final_pos_err",
@@ -761,6 +785,37 @@ def _tick_section(doc: "_Doc", out: Path) -> None:
             meta["identical"], meta["first_step"], meta["largest"]))
         doc.p(f"#{p.stem} {meta['name']}: replayed {how}: {said}.")
         doc.img(f"ticks/{p.stem}.png", f"per-tick log of {meta['name']}")
+
+
+def _strip(doc: "_Doc", out: Path, index: int, name: str) -> None:
+    """Scenario ``index``'s snapshot strip, where ``hlip-sweep run --render`` drew one
+    (:mod:`hlip_jax.render.files`)."""
+    from hlip_jax.render import files
+    p = files.strip(out, index, name)
+    if p.is_file():
+        doc.p(f"Scenario #{index} '{name}' drawn once per simulated second (hlip-sweep run "
+              "--render): path grey, the H-LIP's planned footsteps yellow, the placed ones blue "
+              "(left) and orange (right), keep-out discs red.")
+        doc.img(p.relative_to(out).as_posix(), f"snapshots of {name}")
+
+
+def _video_section(doc: "_Doc", out: Path, man: dict) -> None:
+    """The videos in ``out/videos`` (``hlip-sweep run --render``, ``hlip-sweep render``), each
+    with its snapshot strip where there is one; the video files are linked, not embedded."""
+    from hlip_jax.render import files
+    names = [c["name"] for c in man["configs"]]
+    found = ((files.index_of(p), p) for p in out.glob(f"{files.VIDEOS}/*.mp4"))
+    vids = sorted((i, p) for i, p in found if i is not None and i < len(names))
+    if not vids:
+        return
+    doc.h(2, f"Videos ({len(vids)})")
+    doc.p("Scenarios replayed within their chunks and drawn by MuJoCo's renderer (hlip-sweep "
+          "render); the files lie beside the report in videos/ (linked, not embedded).")
+    for i, v in vids:
+        doc.video(v.relative_to(out).as_posix(), f"#{i} {names[i]} ({v.name})")
+        strip = files.strip(out, i, names[i])
+        if strip.is_file():
+            doc.img(strip.relative_to(out).as_posix(), f"snapshots of {names[i]}")
 
 
 #: the fields the report reads from a per-tick record (ticks/INDEX.json)

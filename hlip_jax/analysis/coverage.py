@@ -124,21 +124,20 @@ def _pooled(runs, p: int, which: str) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros((0, 1))
 
 
-def _fit(name: str, A_cl, train: Sequence[RunErrors], p: int, q: float):
-    """(W, E, training samples) of method ``name`` on plane p (A_cl (n, n)): W from the kept
-    disturbances of the training runs that walked, a calibration over every training run."""
-    d = _pooled([r for r in train if not r.fell], p, "d")
-    W, E = estimators.fit(name, A_cl, d, [r.kept_e(p) for r in train],
-                          [r.fell for r in train], q)
-    return W, E, d.shape[0]
+def fit(name: str, A_cl, train: Sequence[RunErrors], p: int, q: float) -> estimators.Fitted:
+    """Method ``name``'s sets on plane p (A_cl (n, n)) from the training runs
+    (:func:`hlip_jax.analysis.estimators.fit`)."""
+    return estimators.fit(name, A_cl, [r.kept_d(p) for r in train],
+                          [r.kept_e(p) for r in train], [r.fell for r in train], q)
 
 
 def plane_rows(A_cl, train, test, p: int, name: str, q: float) -> list[dict]:
     """The run-level and step-level rows' statistics of plane p, one method (the shared
     columns filled by :func:`group_rows`)."""
     dim = A_cl.shape[-1]
-    W, E, n_w = _fit(name, A_cl, train, p, q)
-    common = {"train_samples": n_w, "state": "[c, p, v]" if dim == 3 else "[p, v]",
+    f = fit(name, A_cl, train, p, q)
+    W, E = f.W, f.E
+    common = {"train_samples": f.samples, "state": "[c, p, v]" if dim == 3 else "[p, v]",
               **_sizes(W, E, dim), **_err_stats(test, p, dim, q)}
     run, step = _level_rows(E, train, test, p)
     return [dict(common, level="run", **run), dict(common, level="step", **step)]
@@ -172,29 +171,35 @@ def consistency(A_cl, runs: Sequence[RunErrors]) -> Consistency:
     held = splits.interleave(list(range(len(runs)))) if len(runs) >= 2 else None
     planes = []
     for p in range(A_cl.shape[0]):
-        W, E = estimators.fit("box", A_cl[p], _pooled(runs, p, "d"), [], [], 0.5)
+        W, E = estimators.fit("box", A_cl[p], [r.kept_d(p) for r in runs],
+                              [r.kept_e(p) for r in runs], [False] * len(runs), 0.5)[:2]
         heldout = None
         if held is not None:
             train = [runs[i] for i in held[0]]
-            _, E_tr = estimators.fit("box", A_cl[p], _pooled(train, p, "d"), [], [], 0.5)
+            E_tr = estimators.fit("box", A_cl[p], [r.kept_d(p) for r in train],
+                                  [r.kept_e(p) for r in train], [False] * len(train), 0.5).E
             heldout = inv.coverage(E_tr, _pooled([runs[i] for i in held[1]], p, "e"))
         planes.append(PlaneConsistency(W, E, E.s, E.alpha, float(E.volume()),
                                        inv.coverage(E, _pooled(runs, p, "e")), heldout))
     return Consistency(tuple(planes))
 
 
+#: the calibrated set the report draws beside the box W's mRPI set
+FIGURE_CALIBRATED = "conformal_box"
+
+
 def fitted_sets(A_cl, runs: Sequence[RunErrors], keys: Sequence, q: float):
-    """For the report's figures: per plane (E of the box W, E_q run-calibrated or None when it
-    cannot be formed, the kept errors of the test runs (k, n)), the runs split as
-    :func:`group_rows` splits them (alternate values of ``keys``)."""
+    """For the report's figures: per plane (E of the box W, E_q of
+    :data:`FIGURE_CALIBRATED` or None when it cannot be formed, the kept errors of the test
+    runs (k, n)), the runs split as :func:`group_rows` splits them (alternate values of
+    ``keys``)."""
     tr, te = splits.interleave(keys)
     train, test = [runs[i] for i in tr], [runs[i] for i in te]
     out = []
     for p in range(A_cl.shape[0]):
-        E_box = _fit("box", A_cl[p], train, p, q)[1]
-        try:        # conformal_run's E_shape is this E_box: calibrate it, not a second mRPI
-            E_q = estimators.calibrate(E_box, estimators.run_scores(
-                E_box, [r.kept_e(p) for r in train], [r.fell for r in train]), q)
+        E_box = fit("box", A_cl[p], train, p, q).E
+        try:
+            E_q = fit(FIGURE_CALIBRATED, A_cl[p], train, p, q).E
         except ValueError:
             E_q = None
         out.append((E_box, E_q, _pooled(test, p, "e")))

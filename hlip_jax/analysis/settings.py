@@ -19,7 +19,7 @@ from hlip_jax.analysis import masks, splits
 
 #: the W methods coverage.csv reports by default (``hull`` on request: its 3-D mRPI set takes
 #: seconds per group and plane)
-DEFAULT_METHODS = ("box", "conformal_step", "conformal_run")
+DEFAULT_METHODS = ("box", "conformal_step", "conformal_run", "conformal_box")
 
 
 @dataclass(frozen=True)
