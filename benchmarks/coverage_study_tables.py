@@ -118,9 +118,9 @@ def headline(path: pathlib.Path, q: float = 0.9) -> list[str]:
             ratio = [float(r["e_half_c"]) / float(r["err_max_c"]) for r in sel]
             inside = sum(q - 0.05 <= c <= q + 0.08 for c in cov)
             out.append(f"- split {split}, {W_NAMES[m]}: run-level coverage {min(cov):.3f}–"
-                       f"{max(cov):.3f} ({inside} of {len(sel)} rows in [{q - 0.05:.2f}, "
-                       f"{q + 0.08:.2f}]); E along c ÷ largest held-out |e_c| "
-                       f"{min(ratio):.1f}–{max(ratio):.1f}")
+                       f"{max(cov):.3f}, mean {statistics.fmean(cov):.3f} ({inside} of "
+                       f"{len(sel)} rows in [{q - 0.05:.2f}, {q + 0.08:.2f}]); E along c ÷ "
+                       f"largest held-out |e_c| {min(ratio):.1f}–{max(ratio):.1f}")
     return out
 
 

@@ -1,8 +1,8 @@
 """Every number docs/coverage_study.md states about coverage against the CSV it came from: the
 table rows (runs and steps covered with their intervals, E's half-width beside the test errors)
 and the headline ranges, read back from the markdown and recomputed from
-docs/coverage_study_data/*_coverage_runlevel.csv.  Rounding tolerance: half a unit of the
-last printed digit."""
+docs/coverage_study_data/*_coverage.csv.  Every section that has tables lists every run-level
+row of the shown methods.  Rounding tolerance: half a unit of the last printed digit."""
 
 from __future__ import annotations
 
@@ -16,8 +16,11 @@ ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "coverage_study.md"
 DATA = ROOT / "docs" / "coverage_study_data"
 NAMES = {"mRPI, box W": "box", "mRPI, hull W": "hull", "mRPI, step q-box": "conformal_step",
-         "run-calibrated E_q": "conformal_run"}
-SECTIONS = {"GPU size": "gpu_coverage_runlevel.csv", "CPU size": "cpu_coverage_runlevel.csv"}
+         "E_q, mRPI shape": "conformal_run", "E_q, box": "conformal_box"}
+SECTIONS = {"Test set": "gpu_test_coverage.csv", "Validation set": "gpu_val_coverage.csv",
+            "CPU size": "cpu_coverage.csv"}
+#: sections with per-split tables (the validation set states its headline only)
+TABLES = ("Test set", "CPU size")
 
 
 def _rows(name: str) -> list[dict]:
@@ -44,7 +47,7 @@ def _check_fraction(cell: str, r: dict) -> None:
         assert _close(printed, float(r[col])), (cell, col, r[col])
 
 
-@pytest.mark.parametrize("section", list(SECTIONS))
+@pytest.mark.parametrize("section", TABLES)
 def test_table_rows_match_the_csv(section):
     body = _sections()[section]
     rows = _rows(SECTIONS[section])
@@ -67,21 +70,26 @@ def test_table_rows_match_the_csv(section):
                 assert _close(printed, float(run[col])), (key, col)
             assert _close(cells[7], float(run["e_half_c"]) / float(run["err_max_c"]))
             checked += 1
-    assert checked == sum(r["level"] == "run" and r["coverage"] != "nan" for r in rows)
+    shown = set(NAMES.values()) - {"conformal_step"}
+    assert checked == sum(r["level"] == "run" and r["coverage"] != "nan" and
+                          r["w_method"] in shown for r in rows)
 
 
 @pytest.mark.parametrize("section", list(SECTIONS))
 def test_headline_ranges_match_the_csv(section):
     body = _sections()[section]
     rows = [r for r in _rows(SECTIONS[section]) if r["level"] == "run" and r["coverage"] != "nan"]
-    pat = (r"- split (\w+), (.+?): run-level coverage ([\d.]+)–([\d.]+) \((\d+) of (\d+) rows in "
-           r"\[0\.85, 0\.98\]\); E along c ÷ largest held-out \|e_c\| ([\d.]+)–([\d.]+)")
+    pat = (r"- split (\w+), (.+?): run-level coverage ([\d.]+)–([\d.]+), mean ([\d.]+) \((\d+) of "
+           r"(\d+) rows in \[0\.85, 0\.98\]\); E along c ÷ largest held-out \|e_c\| "
+           r"([\d.]+)–([\d.]+)")
     found = re.findall(pat, body)
-    assert found
-    for split, name, lo, hi, inside, n, rlo, rhi in found:
+    shown = set(NAMES.values()) - {"conformal_step"}
+    assert len(found) == len({(r["split"], r["w_method"]) for r in rows if r["w_method"] in shown})
+    for split, name, lo, hi, mean, inside, n, rlo, rhi in found:
         sel = [r for r in rows if r["split"] == split and r["w_method"] == NAMES[name]]
         cov = [float(r["coverage"]) for r in sel]
         ratio = [float(r["e_half_c"]) / float(r["err_max_c"]) for r in sel]
         assert int(n) == len(sel) and int(inside) == sum(0.85 <= c <= 0.98 for c in cov)
         assert _close(lo, min(cov)) and _close(hi, max(cov))
+        assert _close(mean, sum(cov) / len(cov))
         assert _close(rlo, min(ratio)) and _close(rhi, max(ratio))
