@@ -305,14 +305,31 @@ def build_parser() -> argparse.ArgumentParser:
     fs.add_argument("--skip", type=int, default=4, metavar="K",
                     help="leave out the first K steps of every run (start from rest; >= 0)")
 
+    ident = sub.add_parser("identify", help="fit an S2S model from a results directory and write "
+                           "it for s2s.model = 'identified'",
+                           description="Least-squares S2S map [p, v]+ = A [p, v] + B u + "
+                           "c(plane, stance), one (A, B) for both planes, from the step logs of "
+                           "the runs of DIR that walked (hlip_jax/s2s_model.py); writes it to "
+                           "-o and compares its residual with the H-LIP's on --test runs.")
+    ident.add_argument("dir", metavar="DIR")
+    ident.add_argument("-o", "--out", required=True, metavar="FILE.npz",
+                       help="the model file to write (a new file)")
+    ident.add_argument("--scenarios", metavar="REGEX", default="",
+                       help="fit on the scenarios whose name matches REGEX (default: all)")
+    ident.add_argument("--test", metavar="REGEX", default=None,
+                       help="held-out scenarios: the residual spread under the model and under "
+                       "the H-LIP on them (not used in the fit)")
+    ident.add_argument("--skip", type=int, default=4, metavar="K",
+                       help="leave out the first K steps of every run (start from rest; >= 0)")
+
     wb = sub.add_parser("wbox", help="the W box of a results directory, as sweep-file lines "
                         "for the tube MPC", description="Read DIR/coverage.csv and print the "
                         "[base.mpc] lines (w_frame, w_c_1 ... w_v_2) of the symmetric box that "
                         "encloses the chosen groups' W, rounded up to 1e-4 (hlip_jax.robust).")
     wb.add_argument("dir", metavar="DIR")
     wb.add_argument("--method", default="box", metavar="METHOD",
-                    help="which W of coverage.csv: box, hull, conformal_step or conformal_run "
-                    "(default box)")
+                    help="which W of coverage.csv: box, hull, conformal_step, conformal_run or "
+                    "conformal_box (default box)")
     wb.add_argument("--group", action="append", default=None, metavar="NAME",
                     help="a group of coverage.csv (repeat for several; default: all groups)")
 
@@ -570,6 +587,72 @@ def cmd_s2s(args) -> int:
     return EXIT_OK
 
 
+def cmd_identify(args) -> int:
+    from hlip_jax import s2s_model, store
+    d, out = Path(args.dir), Path(args.out)
+    if not d.is_dir():
+        raise UserError(f"{d}: results directory not found")
+    if args.skip < 0:
+        raise UserError(f"--skip: expected an integer >= 0, got {args.skip}")
+    if out.suffix != ".npz" or out.exists():
+        raise UserError(f"-o: {out}: allowed: a new file ending in .npz (nothing is overwritten)")
+    chosen = _chosen_scenarios(d, args.scenarios)
+    test = [] if args.test is None else _chosen_scenarios(d, args.test)
+    if set(test) & set(chosen) and args.test is not None:
+        test = [i for i in test if i not in set(chosen)]
+        if not test:
+            raise UserError("--test: every matching scenario is also fitted on; allowed: "
+                            "scenarios outside --scenarios")
+    log = store.load_log(d)
+    h = store.read_manifest(d)["configs"][chosen[0]]["hlip"]
+    try:
+        model = s2s_model.fit(log, chosen, (h["z0"], h["t_ssp"], h["t_dsp"]), args.skip)
+    except ValueError as err:
+        raise UserError(str(err)) from None
+    print(f"{len(chosen)} scenarios, {model.n} step pairs, regressor rank {model.rank} of 7")
+    _print_model(model, log["A"][chosen[0]], log["B"][chosen[0]])
+    if test:
+        _print_heldout(log, test, model, args.skip)
+    s2s_model.write(out, model)
+    print(f"model: {out}  (s2s.model = \"identified\", s2s.file = \"{out.resolve()}\")")
+    return EXIT_OK
+
+
+def _print_model(model, A3, B3) -> None:
+    import numpy as np
+    A_h, B_h = np.asarray(A3, float)[1:, 1:], np.asarray(B3, float)[1:]
+    for r, name in enumerate(("p+", "v+")):
+        print(f"{name}: fit   {model.A[r, 0]:+8.4f} p {model.A[r, 1]:+8.4f} v {model.B[r]:+8.4f} u"
+              f"   residual RMS {model.rms[r]:.4f}")
+        print(f"    H-LIP {A_h[r, 0]:+8.4f} p {A_h[r, 1]:+8.4f} v {B_h[r]:+8.4f} u")
+    for j, plane in enumerate(("sagittal", "lateral")):
+        print(f"constants {plane}: L p {model.offset[j, 0, 0]:+.4f} v {model.offset[j, 0, 1]:+.4f}"
+              f"  R p {model.offset[j, 1, 0]:+.4f} v {model.offset[j, 1, 1]:+.4f}")
+
+
+def _print_heldout(log, test, model, skip: int) -> None:
+    """Spread (1st to 99th percentile) of the held-out residuals per plane, model and H-LIP."""
+    import numpy as np
+
+    from hlip_jax import s2s_fit, s2s_model
+    r_id = s2s_model.residuals(log, test, model, skip)
+    r_h = s2s_fit.residuals(log, test, None, skip,
+                            hlip=s2s_fit.hlip_rows(log["A"][test[0]], log["B"][test[0]]))
+    if not len(r_id):
+        print("held out: no usable step pairs")
+        return
+
+    def spread(r):
+        return np.percentile(r, 99, axis=0) - np.percentile(r, 1, axis=0)
+
+    print(f"held out: {len(test)} scenarios, {len(r_id)} step pairs; residual spread "
+          "(1st-99th percentile) p [m], v [m/s]")
+    for j, plane in enumerate(("sagittal", "lateral")):
+        s_id, s_h = spread(r_id[:, j]), spread(r_h[:, j])
+        print(f"  {plane:<9} identified {s_id[0]:.4f}, {s_id[1]:.4f}   H-LIP {s_h[0]:.4f}, "
+              f"{s_h[1]:.4f}   ratio {s_h[0] / s_id[0]:.2f}, {s_h[1] / s_id[1]:.2f}")
+
+
 def cmd_whull(args) -> int:
     import csv
 
@@ -743,7 +826,8 @@ def main(argv=None) -> int:
     xla_flags.apply()        # reproducible GPU runs (before JAX's backend starts)
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
                "bench": cmd_bench, "ticks": cmd_ticks, "coverage": cmd_coverage,
-               "s2s": cmd_s2s, "wbox": cmd_wbox, "whull": cmd_whull}[args.cmd]
+               "s2s": cmd_s2s, "identify": cmd_identify, "wbox": cmd_wbox,
+               "whull": cmd_whull}[args.cmd]
     try:
         with _sigterm_unwinds():
             return handler(args)

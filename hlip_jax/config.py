@@ -83,6 +83,17 @@ class MPCConfig:
 
 
 @dataclass(frozen=True)
+class S2SConfig:
+    """The step-to-step map that the MPC plans with, the stepping gain is designed on and the
+    error analysis uses (:mod:`hlip_jax.s2s_model`)."""
+    model: str = spec("hlip", doc="'hlip': the H-LIP's map from hlip.z0, t_ssp, t_dsp; "
+                      "'identified': the map fitted from a robot's step log, read from s2s.file",
+                      choices=("hlip", "identified"))
+    file: str = spec("", doc="the identified model (.npz of hlip-sweep identify), fitted at this "
+                     "sweep's hlip.z0, t_ssp, t_dsp; read with s2s.model = 'identified' only")
+
+
+@dataclass(frozen=True)
 class GainConfig:
     """Stepping-law gain K in u = u_HLIP + K (x_robot - x_HLIP), per plane.
 
@@ -299,6 +310,7 @@ class ScenarioConfig:
     seed: int = spec(0, 0, 2**31 - 1, "PRNG seed")
     duration: float = spec(30.0, 0.5, 3600.0, "simulated time", "s")
     hlip: HLIPConfig = field(default_factory=HLIPConfig)
+    s2s: S2SConfig = field(default_factory=S2SConfig)
     mpc: MPCConfig = field(default_factory=MPCConfig)
     gain: GainConfig = field(default_factory=GainConfig)
     path: PathConfig = field(default_factory=PathConfig)

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import hlip, mpc, paths, progress, qp, robust, trace_cache
+from hlip_jax import hlip, mpc, paths, progress, qp, robust, s2s_model, trace_cache
 from hlip_jax.config import (GROUND_KINDS, STATIC_FIELDS, RealismConfig, ScenarioConfig,
                              field_value)
 from hlip_jax import plants
@@ -80,15 +80,45 @@ class Static(NamedTuple):
 # configs → arrays
 
 def stepping_gain(cfg: ScenarioConfig) -> np.ndarray:
-    """K (2, 3) per plane on [c, p, v]; the c entry is zero for a 2-state gain."""
-    return _cached_gain(cfg.hlip, cfg.gain).copy()
+    """K (2, 3) per plane on [c, p, v]; the c entry is zero for a 2-state gain.  Designed on
+    the scenario's S2S map (:func:`s2s_of`)."""
+    return _cached_gain(cfg.hlip, cfg.gain, cfg.s2s).copy()
 
 
-def _stepping_gain(h, g) -> np.ndarray:
-    K = _plane_gain(h, g)
+def s2s_of(cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(A (3, 3), B (3,)) on [c, p, v] of the scenario's S2S map: the H-LIP's, or the
+    identified model of ``s2s.file`` lifted (:func:`hlip_jax.s2s_model.lifted`)."""
+    if cfg.s2s.model == "identified":
+        return _cached_identified(cfg.s2s.file)
+    return _cached_s2s(cfg.hlip)
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_identified(path: str) -> tuple[np.ndarray, np.ndarray]:
+    return s2s_model.lifted(s2s_model.read(path))
+
+
+def _stepping_gain(h, g, s) -> np.ndarray:
+    plane_gain = (_plane_gain if s.model == "hlip" else
+                  functools.partial(_model_gain, *_cached_identified(s.file)))
+    K = plane_gain(h, g)
     if g.lateral == "deadbeat" and g.type != "deadbeat":
-        K[1] = _plane_gain(h, dataclasses.replace(g, type="deadbeat"))[1]
+        K[1] = plane_gain(h, dataclasses.replace(g, type="deadbeat"))[1]
     return K
+
+
+def _model_gain(A3, B3, h, g) -> np.ndarray:
+    """The gain of design ``g`` on an identified map (A3, B3): deadbeat by Ackermann's
+    placement (every eigenvalue of A + BK at zero), LQR by the Riccati equation; on [p, v]
+    alone without ``g.with_position``."""
+    A, B = (A3, B3) if g.with_position else (A3[1:, 1:], B3[1:])
+    if g.type == "deadbeat":
+        k = hlip.place_gain_ackermann(jnp.asarray(A), jnp.asarray(B))
+    else:
+        q = [g.q_c, g.q_p, g.q_v] if g.with_position else [g.q_p, g.q_v]
+        k = hlip.lqr_gain(A, B, jnp.diag(jnp.array(q)), jnp.array(g.r))
+    k = np.asarray(k, np.float64)
+    return np.tile(k if g.with_position else np.concatenate([[0.0], k]), (2, 1))
 
 
 def _plane_gain(h, g) -> np.ndarray:
@@ -153,8 +183,8 @@ def _cached_s2s(h) -> tuple[np.ndarray, np.ndarray]:
 
 
 @functools.lru_cache(maxsize=4096)
-def _cached_gain(hlip_cfg, gain_cfg) -> np.ndarray:
-    return _stepping_gain(hlip_cfg, gain_cfg)
+def _cached_gain(hlip_cfg, gain_cfg, s2s_cfg) -> np.ndarray:
+    return _stepping_gain(hlip_cfg, gain_cfg, s2s_cfg)
 
 
 def default_dtype():
@@ -224,7 +254,7 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
 
     rows = []
     for c in configs:
-        A, B = _cached_s2s(c.hlip)
+        A, B = s2s_of(c)
         obs = np.zeros((n_obs, 4))
         act = np.zeros(n_obs, bool)
         for i, o in enumerate(c.obstacles):

@@ -358,8 +358,30 @@ def _cross_checks(cfg: C.ScenarioConfig, where: str) -> None:
                              f"never acts; allowed: 0 <= time < {cfg.duration:g}")
     if cfg.obstacles:
         _check_start_clear(cfg, where)
+    _check_s2s(cfg, where)
     if m.robust:
         _check_tube(cfg, where)
+
+
+def _check_s2s(cfg: C.ScenarioConfig, where: str) -> None:
+    """An identified S2S model is read from s2s.file, fitted at this scenario's H-LIP cadence
+    (z0, t_ssp, t_dsp); the H-LIP model reads no file."""
+    s, h = cfg.s2s, cfg.hlip
+    if s.model == "hlip":
+        if s.file:
+            raise SweepError(f"{where}: s2s.file: {s.file!r} is read with s2s.model = "
+                             "'identified' only; allowed with s2s.model = 'hlip': ''")
+        return
+    from hlip_jax import s2s_model
+    try:
+        model = s2s_model.read(s.file)
+    except ValueError as err:
+        raise SweepError(f"{where}: s2s.file: {err}") from None
+    want = (h.z0, h.t_ssp, h.t_dsp)
+    if any(abs(a - b) > 1e-9 for a, b in zip(model.cadence, want)):
+        raise SweepError(f"{where}: s2s.file: fitted at (z0, t_ssp, t_dsp) = "
+                         f"{tuple(round(c, 6) for c in model.cadence)}; allowed: the scenario's "
+                         f"hlip values {tuple(round(c, 6) for c in want)}")
 
 
 def _check_tube(cfg: C.ScenarioConfig, where: str) -> None:
@@ -375,7 +397,7 @@ def _check_tube(cfg: C.ScenarioConfig, where: str) -> None:
                          "true (without the c term the COM position error has no bounded E)")
     _check_w_shape(m, where)
     try:
-        A, B = rollout._cached_s2s(cfg.hlip)
+        A, B = rollout.s2s_of(cfg)
         t = rollout.tube_of(cfg, A, B)
         robust.check_limits(t, m.step_length_min, m.step_length_max, m.step_width_min,
                             m.step_width_max)
@@ -1093,7 +1115,7 @@ def _read_sweep_file(p: Path, source: str) -> str:
 
 
 #: fields that name a file; a relative path in a sweep file is read from that file's directory
-FILE_FIELDS = ("mpc.w_hull_file",)
+FILE_FIELDS = ("mpc.w_hull_file", "s2s.file")
 
 
 def _anchored(value, base: Path):
