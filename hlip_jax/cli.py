@@ -8,6 +8,8 @@
     hlip-sweep list
     hlip-sweep show SWEEP [--plant ...] [--duration S] [--limit N]
     hlip-sweep ticks DIR SCENARIO            (the controller's 1 kHz log of one Cassie run)
+    hlip-sweep render DIR SCENARIO [-o FILE.mp4|.gif|.png] [--fps 30] [--camera track|fixed]
+                      [--speed 1] [--width 640 --height 480] [--t0 S] [--t1 S]  (see the robot)
     hlip-sweep s2s DIR [--scenarios REGEX] [--skip K]   (the robot's S2S map, least squares)
     hlip-sweep whull DIR --out FILE [--scenarios REGEX]  (a hull W for the tube MPC)
     hlip-sweep coverage DIR [--q Q] [--train-on FIELD=V1,V2]
@@ -183,6 +185,13 @@ def _add_run(sub) -> None:
                    help="after the sweep, replay the Cassie scenarios whose names match REGEX "
                    "within their chunks with the controller's 1 kHz log (as `ticks` does: "
                    "DIR/ticks/INDEX.npz, .png, .json) and show their figures in the report")
+    r.add_argument("--render", metavar="REGEX",
+                   help="after the sweep, replay the Cassie scenarios whose names match REGEX "
+                   "within their chunks and draw them (as `render` does: DIR/videos/INDEX_NAME.mp4), "
+                   "with a snapshot strip (one frame per simulated second, "
+                   "DIR/videos/INDEX_NAME_strip.png) of each and of one representative scenario "
+                   "per path, which the report shows; needs pip install 'hlip_jax[render]' and an "
+                   "OpenGL backend (both checked before the sweep runs)")
     r.add_argument("--distributed", action="store_true",
                    help="several hosts: call jax.distributed.initialize() (coordinator, process "
                    "count and id from the environment, e.g. JAX_COORDINATOR_ADDRESS / SLURM); every "
@@ -294,6 +303,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "field or 'path') is one of the values, coverage on the others")
 
     _ticks_parser(sub)
+    _render_parser(sub)
 
     fs = sub.add_parser("s2s", help="fit the robot's step-to-step map from a results directory",
                         description="Least-squares S2S map [p, v]+ = A [p, v] + B u + c(stance) "
@@ -394,6 +404,10 @@ def cmd_run(args) -> int:
         raise UserError("--ticks and --distributed exclude each other: replay the scenarios "
                         f"afterwards with `{PROG} ticks DIR SCENARIO`")
     chosen = _tick_choice(sw, args.ticks) if args.ticks is not None else []
+    if args.render is not None and args.distributed:
+        raise UserError("--render and --distributed exclude each other: draw the scenarios "
+                        f"afterwards with `{PROG} render DIR SCENARIO`")
+    drawn = _render_choice(sw, args.render) if args.render is not None else []
     if args.distributed:
         import jax
         _init_distributed(jax)
@@ -414,6 +428,8 @@ def cmd_run(args) -> int:
     print(f"results: {out} ({res.n_scenarios} scenarios, {res.seconds:.1f} s)")
     if chosen:
         _tick_logs(out, chosen)
+    if args.render is not None:
+        _render_runs(out, drawn)
     if not args.no_report:
         with runner.on_host():
             html, md = report.write_report(out)
@@ -724,14 +740,7 @@ def cmd_ticks(args) -> int:
     if not d.is_dir():
         raise UserError(f"{d}: results directory not found")
     man = store.read_manifest(d)
-    names = [c["name"] for c in man["configs"]]
-    if args.scenario in names:
-        index = names.index(args.scenario)
-    elif args.scenario.isdigit() and int(args.scenario) < len(names):
-        index = int(args.scenario)
-    else:
-        raise UserError(f"SCENARIO: {args.scenario!r} is neither a scenario name of {d} nor an "
-                        f"index; allowed: 0..{len(names) - 1} or a name from summary.csv")
+    index = _scenario_index(d, man, args.scenario)
     try:
         rep = tick_report.replay(d, index, alone=args.alone)
     except ValueError as err:
@@ -746,6 +755,18 @@ def cmd_ticks(args) -> int:
     return EXIT_OK
 
 
+def _scenario_index(d: Path, man: dict, text: str) -> int:
+    """The index of scenario ``text`` (a name or an index) of results directory ``d`` with
+    manifest ``man``; UserError listing what is allowed otherwise."""
+    names = [c["name"] for c in man["configs"]]
+    if text in names:
+        return names.index(text)
+    if text.isdigit() and int(text) < len(names):
+        return int(text)
+    raise UserError(f"SCENARIO: {text!r} is neither a scenario name of {d} nor an "
+                    f"index; allowed: 0..{len(names) - 1} or a name from summary.csv")
+
+
 def _agreement_text(rep, man: dict) -> str:
     """One line: whether the replay (alone or within its chunk) is the sweep's run."""
     import jax
@@ -757,6 +778,158 @@ def _agreement_text(rep, man: dict) -> str:
     note = (f"; the sweep ran on {len(ran)} device(s)"
             if not rep.agreement.identical and ran and len(ran) != len(jax.devices()) else "")
     return f"replay ({where}): {tick_report.verdict(rep.agreement)}{note}"
+
+
+# --- render: pictures of a stored Cassie scenario (hlip_jax.render) ---
+
+
+def _render_parser(sub) -> None:
+    """The ``render`` subcommand's arguments."""
+    from hlip_jax.render import camera
+    rd = sub.add_parser("render", help="draw one Cassie scenario of a results directory as a "
+                        "video", description="Re-simulate one scenario of DIR as `ticks` does "
+                        "(within its chunk: the sweep's own run) and draw the robot with "
+                        "MuJoCo's renderer, headless (MUJOCO_GL=egl or osmesa, chosen where "
+                        "unset), with the path, the H-LIP's planned and the robot's placed "
+                        "footsteps, the obstacles' keep-out discs, the scenario's name and the "
+                        "time; write FILE: an .mp4 video, a .gif animation or a .png snapshot "
+                        "strip (one frame per simulated second).  Nothing else is written; "
+                        "needs pip install 'hlip_jax[render]'.")
+    rd.add_argument("dir", metavar="DIR")
+    rd.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
+    rd.add_argument("-o", "--output", metavar="FILE",
+                    help="the file to write: .mp4, .gif or .png (default "
+                    "DIR/videos/INDEX_NAME.mp4)")
+    rd.add_argument("--fps", type=_finite_float, default=30.0,
+                    help="frames per second of video (default 30)")
+    rd.add_argument("--speed", type=_finite_float, default=1.0,
+                    help="simulated seconds per second of video (default 1)")
+    rd.add_argument("--camera", choices=camera.CAMERAS, default="track",
+                    help="track: follow the pelvis (default); fixed: the whole path from above")
+    rd.add_argument("--width", type=int, metavar="PX",
+                    help="frame width in pixels, even (default 640; 320 for a .png strip)")
+    rd.add_argument("--height", type=int, metavar="PX",
+                    help="frame height in pixels, even (default 480; 240 for a .png strip)")
+    rd.add_argument("--t0", type=_finite_float, metavar="S",
+                    help="start at this plant time [s] (default: the run's start)")
+    rd.add_argument("--t1", type=_finite_float, metavar="S",
+                    help="end at this plant time [s] (default: the run's end)")
+    rd.add_argument("--alone", action="store_true",
+                    help="replay the scenario as a batch of one instead of within its chunk "
+                    "(as `ticks --alone`)")
+    _cache_options(rd)
+
+
+@contextlib.contextmanager
+def _render_errors():
+    """Within the block, :class:`hlip_jax.render.RenderError` is a user error (exit 2)."""
+    from hlip_jax.render import RenderError
+    try:
+        yield
+    except RenderError as err:
+        raise UserError(str(err)) from None
+
+
+def _render_ready(path: Path) -> str:
+    """Check that a file like ``path`` can be written and an OpenGL backend drawn with (made
+    ``mujoco.Renderer``'s); returns the backend's name (``MUJOCO_GL``)."""
+    from hlip_jax.render import gl, output
+    output.require(path)
+    backend = gl.select()
+    gl.activate(backend)
+    return backend
+
+
+def _render_output(d: Path, default: Path, given: str | None) -> Path:
+    """``render``'s output file: ``given``, or ``default``; a user error for a path into the
+    results directory other than its videos/ folder (the results are never written)."""
+    from hlip_jax.render import files
+    if given is not None and not given.strip():
+        raise UserError("-o: an empty path; allowed: a file name ending in .mp4, .gif or .png")
+    out = Path(given) if given else default
+    where, results = out.resolve(), d.resolve()
+    if where.is_relative_to(results) and not where.is_relative_to(results / files.VIDEOS):
+        raise UserError(f"-o {out}: inside the results directory {d}; allowed: a path outside "
+                        f"it or under {d / files.VIDEOS} (render changes no result)")
+    if out.is_dir():
+        raise UserError(f"-o {out}: a directory; allowed: a file name ending in .mp4, .gif or "
+                        ".png")
+    return out
+
+
+def cmd_render(args) -> int:
+    import time
+
+    from hlip_jax import rollout, store, sweep
+    from hlip_jax.render import clip, files, motion
+    _use_cache(args)
+    d = Path(args.dir)
+    if not d.is_dir():
+        raise UserError(f"{d}: results directory not found")
+    man = store.read_manifest(d)
+    index = _scenario_index(d, man, args.scenario)
+    cfg = sweep.config_from_dict(man["configs"][index])
+    out = _render_output(d, files.video(d, index, cfg.name), args.output)
+    strip = out.suffix.lower() == ".png"
+    req = clip.Request(fps=args.fps, speed=args.speed, camera=args.camera, t0=args.t0,
+                       t1=args.t1, width=args.width or (320 if strip else 640),
+                       height=args.height or (240 if strip else 480))
+    try:
+        rollout.check_keeps_ticks(cfg, index)
+    except ValueError as err:
+        raise UserError(f"SCENARIO: {err}") from None
+    with _render_errors():
+        clip.check(req)
+        backend = _render_ready(out)
+        start = time.perf_counter()
+        try:
+            mo = next(motion.replays(d, [index], alone=args.alone))
+        except ValueError as err:
+            raise UserError(str(err)) from None
+        replayed = time.perf_counter() - start
+        w = clip.write(mo, out, req)
+    print(f"render: {w.path}")
+    print(f"        {w.frames} frames of {w.simulated:.2f} s simulated, drawn and written in "
+          f"{w.seconds:.1f} s (MUJOCO_GL={backend}); replay {mo.within} {replayed:.1f} s: "
+          f"{mo.verdict}")
+    return EXIT_OK
+
+
+def _render_choice(sw, pattern: str) -> list[int]:
+    """Indices of the scenarios of ``sw`` whose names match ``pattern`` (``--render``); a user
+    error, before anything runs, for a bad pattern, no match, a plant without a tick log, the
+    video library missing or no OpenGL backend."""
+    from hlip_jax import rollout
+    cfgs = list(sw.scenarios)
+    chosen = _matching([c.name for c in cfgs], pattern, "--render")
+    for i in chosen:
+        try:
+            rollout.check_keeps_ticks(cfgs[i], i)
+        except ValueError as err:
+            raise UserError(f"--render: {err}") from None
+    with _render_errors():
+        _render_ready(Path("check.mp4"))
+    return chosen
+
+
+def _render_runs(out: Path, chosen: list[int]) -> None:
+    """The ``--render`` scenarios' videos and snapshot strips, and a strip of the report's
+    representative scenario of every path (where its plant keeps a tick log), in
+    ``out/videos``; one replay per chunk, one line per file."""
+    from hlip_jax import plants, report, store
+    from hlip_jax.render import clip, files, motion
+    man = store.read_manifest(out)
+    reps = report.representatives(man, store.read_summary(out)).values()
+    logs = {i for i in reps if plants.load(man["configs"][i]["plant"]).step_with_log}
+    with _render_errors():
+        for mo in motion.replays(out, sorted(set(chosen) | logs)):
+            made = [clip.write(mo, files.strip(out, mo.index, mo.config.name),
+                               clip.Request(width=320, height=240))]
+            if mo.index in chosen:
+                made.insert(0, clip.write(mo, files.video(out, mo.index, mo.config.name),
+                                          clip.Request()))
+            for w in made:
+                print(f"render: {w.path} ({w.frames} frames; replay: {mo.verdict})")
 
 
 def cmd_list(args) -> int:
@@ -827,7 +1000,8 @@ def main(argv=None) -> int:
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
                "bench": cmd_bench, "ticks": cmd_ticks, "coverage": cmd_coverage,
                "s2s": cmd_s2s, "identify": cmd_identify, "wbox": cmd_wbox,
-               "whull": cmd_whull}[args.cmd]
+               "whull": cmd_whull,
+               "render": cmd_render}[args.cmd]
     try:
         with _sigterm_unwinds():
             return handler(args)

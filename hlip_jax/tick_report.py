@@ -11,9 +11,11 @@ margin can then walk where its chunk fell).  It writes ``ticks/<index>.npz`` (th
 ran, idle ones after each touchdown dropped, with the plant time ``time`` [s], the step index
 ``step`` and the measured output accelerations ``ydd_meas``), ``ticks/<index>.png`` and
 ``ticks/<index>.json`` (how it was replayed and whether that is the stored run), which the
-report shows (``hlip-sweep run --ticks REGEX`` replays the chosen scenarios after the sweep).  The
-chunk's device split is this machine's: on another device count (the manifest names the
-sweep's devices) the replay may differ, and :func:`compare` says so.
+report shows (``hlip-sweep run --ticks REGEX`` replays the chosen scenarios after the sweep);
+:func:`runs` replays without writing anything (:mod:`hlip_jax.render` draws the robot from
+the log's joint positions ``qpos``).  The chunk's device split is this machine's: on another
+device count (the manifest names the sweep's devices) the replay may differ, and
+:func:`compare` says so.
 
 Model mismatch: every tick logs the output accelerations the CLF-QP's model predicts for the
 torques it applied (``ydd_model``: rigid leaf springs, the tick's contact set) and the output
@@ -163,7 +165,7 @@ def verdict(a: Agreement) -> str:
             f"(largest robot-state difference {a.largest:.3g})")
 
 
-def _stored(out_dir, indices) -> dict:
+def stored_logs(out_dir, indices) -> dict:
     """{index: that scenario's stored step log (arrays (K, ...))}, the chunks read once."""
     from hlip_jax import store
     log = store.load_log(out_dir, indices)
@@ -203,22 +205,43 @@ def _manifest_configs(out_dir, indices) -> tuple[dict, list]:
     return man, configs
 
 
-def replay_many(out_dir, indices) -> list[Replay]:
-    """Re-simulate scenarios ``indices`` of the results in ``out_dir`` with their tick logs,
-    each within the chunk it ran in (one run per chunk, however many of its scenarios are
-    asked for; the chunk's scenarios, padding and device split: the sweep's own run), and
-    write their logs and figures (:func:`_write`).  Every robot of a replayed chunk logs its
-    ticks, so a chunk needs that memory once.  Returns one :class:`Replay` per index, in order."""
-    from hlip_jax import rollout, runner
+def runs(out_dir, indices, *, alone: bool = False):
+    """Re-simulate scenarios ``indices`` of the results in ``out_dir`` with their tick logs and
+    yield, scenario by scenario, (index, its :class:`hlip_jax.config.ScenarioConfig`, the
+    replay's step log (arrays (K, ...)), its tick log (:class:`hlip_jax.plants.cassie.tick.TickLog`
+    of arrays (K, ticks per step, ...)), "chunk" or "alone"); nothing is written.  Each runs
+    within the chunk it ran in (one run per chunk, however many of its scenarios are asked
+    for; the chunk's scenarios, padding and device split: the sweep's own run; every robot of
+    a replayed chunk logs its ticks, so a chunk needs that memory once), or, with ``alone``,
+    as a batch of one.  ValueError for an index out of range (raised here, before any run)."""
     man, configs = _manifest_configs(out_dir, indices)
+    return _simulated(man, configs, indices, alone)
+
+
+def _simulated(man: dict, configs: list, indices, alone: bool):
+    """:func:`runs`' generator."""
+    from hlip_jax import rollout, runner
+    if alone:
+        for i in indices:
+            yield (i, configs[i], *rollout.simulate_ticks(configs, i), "alone")
+        return
     batch, shapes = int(man["batch"]), rollout.shapes_of(configs)
-    stored, done = _stored(out_dir, indices), {}
     for chunk in sorted({i // batch for i in indices}):
         mine = sorted({i for i in indices if i // batch == chunk})
-        runs = rollout.simulate_chunk_ticks(runner.chunk_configs(configs, batch, chunk),
-                                            [i % batch for i in mine], shapes=shapes)
-        for i, (step_log, ticks) in zip(mine, runs):
-            done[i] = _write(out_dir, i, configs[i].name, step_log, ticks, "chunk", stored[i])
+        out = rollout.simulate_chunk_ticks(runner.chunk_configs(configs, batch, chunk),
+                                           [i % batch for i in mine], shapes=shapes)
+        for i, (step_log, ticks) in zip(mine, out):
+            yield i, configs[i], step_log, ticks, "chunk"
+
+
+def replay_many(out_dir, indices) -> list[Replay]:
+    """Re-simulate scenarios ``indices`` of the results in ``out_dir`` with their tick logs,
+    each within the chunk it ran in (:func:`runs`), and write their logs and figures
+    (:func:`_write`).  Returns one :class:`Replay` per index, in order."""
+    replays = runs(out_dir, indices)
+    stored, done = stored_logs(out_dir, indices), {}
+    for i, cfg, step_log, ticks, within in replays:
+        done[i] = _write(out_dir, i, cfg.name, step_log, ticks, within, stored[i])
     return [done[i] for i in indices]
 
 
@@ -228,8 +251,7 @@ def replay(out_dir, index: int, *, alone: bool = False) -> Replay:
     memory; float32 runs at the margin may end otherwise), and write its log and figure."""
     if not alone:
         return replay_many(out_dir, [index])[0]
-    from hlip_jax import rollout
-    _, configs = _manifest_configs(out_dir, [index])
-    step_log, ticks = rollout.simulate_ticks(configs, index)
-    return _write(out_dir, index, configs[index].name, step_log, ticks, "alone",
-                  _stored(out_dir, [index])[index])
+    replays = runs(out_dir, [index], alone=True)
+    stored = stored_logs(out_dir, [index])
+    i, cfg, step_log, ticks, within = next(replays)
+    return _write(out_dir, i, cfg.name, step_log, ticks, within, stored[i])

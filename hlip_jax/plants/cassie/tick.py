@@ -168,6 +168,9 @@ class TickLog(NamedTuple):
                              # CLF-QP's model (rigid leaf springs, the contact set) predicts for
                              # the applied torques [m/s², rad/s²]; against the measured ÿ
                              # (the time derivative of ``ydot``) it shows the model's mismatch
+    qpos: jax.Array          # (nq,) the simulated robot's generalised positions at the tick's
+                             # start (MuJoCo qpos: pelvis free joint [m, quaternion], then the
+                             # legs' joints [rad]; hlip_jax.render draws the robot from them)
 
 
 def robot_state(terms: model.RobotTerms, stance):
@@ -463,7 +466,7 @@ def tick(ctx: Context, s: TickState, settings: Settings):
                   contact=cts.sites, status=res.status, iterations=res.iterations,
                   pelvis=s.d.qpos[:7], phase=s.phase,
                   u_des=u_des, y_err=e, grf=grf, spring=s.d.qpos[realism.layout(cassie()).spring_qpos],
-                  gap=gap, ydot=meas.ydot, ydd_model=ydd_model)
+                  gap=gap, ydot=meas.ydot, ydd_model=ydd_model, qpos=s.d.qpos)
     s = s._replace(gap=jnp.where(running(s), jnp.minimum(s.gap, gap), s.gap))
     return advance(ctx, s, cts, u_des, res, d_new), log
 
