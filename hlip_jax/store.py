@@ -503,7 +503,7 @@ def _group_label(cfgs: list, held: str) -> str:
     return paths + ("/" + ",".join(same) if same else "")
 
 
-def _analysed_runs(out_dir, warmup: int, chosen=None):
+def analysed_runs(out_dir, warmup: int, chosen=None):
     """(scenario index, config, group key, A + BK per plane, frame,
     :class:`hlip_jax.analysis.runs.RunErrors`) of every run with a valid step, in chunk
     order; ``chosen``: scenario indices to keep (None: all)."""
@@ -542,7 +542,7 @@ def disturbance_samples(out_dir, chosen=None, warmup: int | None = None):
     in different analysis frames or none is left."""
     warmup = analysis_settings(out_dir).warmup if warmup is None else warmup
     frames, parts, n_runs = set(), ([], []), 0
-    for *_, frame, run in _analysed_runs(out_dir, warmup, chosen):
+    for *_, frame, run in analysed_runs(out_dir, warmup, chosen):
         frames.add(frame)
         for p in (0, 1):
             parts[p].append(run.kept_d(p))
@@ -573,7 +573,7 @@ def coverage_rows(out_dir, settings=None, train_on: tuple | None = None) -> list
     swept ``field`` takes one of ``values``, coverage on the others of the group."""
     from hlip_jax.analysis import coverage as cov, splits
     settings = analysis_settings(out_dir) if settings is None else settings
-    runs_list = list(_analysed_runs(out_dir, settings.warmup))
+    runs_list = list(analysed_runs(out_dir, settings.warmup))
     if train_on is not None:
         field = train_on[0]
         missing = [cfg.name for _, cfg, *_ in runs_list if field not in cfg.swept]
@@ -605,7 +605,7 @@ def coverage_sets(out_dir, split: str = "seed", settings=None) -> list[tuple]:
     settings = analysis_settings(out_dir) if settings is None else settings
     sp = splits.split(split)
     out = []
-    for g in _groups(list(_analysed_runs(out_dir, settings.warmup)), sp.field):
+    for g in _groups(list(analysed_runs(out_dir, settings.warmup)), sp.field):
         if len({k for k in g["keys"] if k is not None}) < 2:
             continue
         try:
