@@ -21,11 +21,11 @@ sys.path.insert(0, str(ROOT))
 from hlip_jax import metrics, store  # noqa: E402
 
 
-def first_push(cfg: dict):
-    """Start of a stored scenario's first push [s] (None: no push), read from the manifest's
+def push_windows(cfg: dict) -> list:
+    """A stored scenario's acting pushes as (start [s], duration [s]), read from the manifest's
     plain dict, so that code of other versions can time the same directory."""
-    times = [p["time"] for p in cfg.get("disturbance", {}).get("pushes", [])]
-    return min(times) if times else None
+    return [(p["time"], p["duration"]) for p in cfg.get("disturbance", {}).get("pushes", [])
+            if p.get("force", 0) > 0 and p.get("duration", 0) > 0]
 
 
 def main(argv=None) -> int:
@@ -40,7 +40,7 @@ def main(argv=None) -> int:
         z = store.load_chunk(f)
         for j, i in enumerate(z["index"]):
             t0 = time.perf_counter()
-            metrics.scenario_metrics(z, j, True, first_push(cfgs[int(i)]))
+            metrics.scenario_metrics(z, j, True, push_windows(cfgs[int(i)]))
             if n:
                 times.append(time.perf_counter() - t0)
     print(f"{len(times)} scenarios: {sum(times) / max(len(times), 1):.3f} s per scenario")

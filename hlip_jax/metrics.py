@@ -14,14 +14,17 @@ scenario's valid pre-impact samples k, i.e. the steps before any failure.
   step minus the stepping law's step u_HLIP + K e at the same pre-impact error;
   :func:`hlip_jax.invariant.placement_errors`); ``place_err_along`` [m]: its mean along the path
   heading (a systematic over- (> 0) or under-step).  0 on the H-LIP plant without step noise.
-* ``cov_{x,y}_inner`` / ``cov_{x,y}_outer``: in-sample coverage bracket of the errors in the
-  mRPI set E of ``e⁺ = (A + BK) e + d`` with W the box of that scenario's own samples of the
-  error system's disturbance d = w + B δu (the S2S disturbance plus the foot-placement error;
-  the errors obey this recursion exactly, so a run started at e = 0 is covered in-sample
-  whenever its W contains the origin, and the held-out figure is the test); the state is
-  [c, p, v] when the gain acts on c, else [p, v] (see :func:`error_model`).
-* ``cov_{x,y}_heldout``: W and E from the first half of the steps, coverage (outer set) of the
-  errors in the second half.
+* ``cov_{x,y}_inner`` / ``cov_{x,y}_outer``: in-sample coverage bracket of the kept errors
+  (the analysis pipeline's run, :func:`hlip_jax.analysis.runs.run_errors`: after the default
+  warm-up :data:`hlip_jax.analysis.masks.WARMUP`, outside push windows) in the mRPI set E of
+  ``e⁺ = (A + BK) e + d`` (the ``box`` estimator) with W the box of every disturbance the run
+  met while walking outside push windows, d = w + B δu (the S2S disturbance plus the
+  foot-placement error; the warm-up's too, since they drive the kept errors): the errors obey
+  this recursion exactly, so a run started at e = 0 is covered in-sample whenever its W
+  contains the origin, and the held-out figure is the test; the state is [c, p, v] when the
+  gain acts on c, else [p, v].
+* ``cov_{x,y}_heldout``: W and E from the first half of the kept steps, coverage (outer set)
+  of the kept errors in the second half (:func:`hlip_jax.analysis.splits.time_halves`).
 * The coverage and E-size metrics are per plane of the scenario's :func:`analysis_frame`:
   x = sagittal (along the path heading θ_d(t_k)) and y = lateral when the gain is the same in
   both planes (errors and disturbances rotated step by step,
@@ -54,8 +57,10 @@ import math
 
 import numpy as np
 
+from hlip_jax import invariant as inv
 from hlip_jax import steplog
-from hlip_jax.analysis.errors import W_MIN_HALFWIDTH, error_samples, placement
+from hlip_jax.analysis import estimators, masks, runs, splits
+from hlip_jax.analysis.errors import placement
 
 SUMMARY_METRICS = (
     "steps", "rms_track_err", "max_track_err", "rms_pos_err", "final_pos_err",
@@ -85,36 +90,34 @@ def _seg_dist(P: np.ndarray, R: np.ndarray) -> np.ndarray:
     return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
 
 
-def _coverage_metrics(log: dict, s: int, mask: np.ndarray, du: np.ndarray) -> dict:
-    """Per-plane coverage of [p, v] errors in the mRPI set (see module docstring); ``du``
-    (K, 2): the scenario's foot-placement errors (:func:`_placement`)."""
-    from hlip_jax import invariant as inv
-    out = {}
-    _, _, _, acl, e, w, wmask = error_samples(log, s, mask, du)
-    nK = int(mask.sum())
-    half = nK // 2
+def _box(A_cl, run, p: int, steps: np.ndarray):
+    """The box estimator's (W, E) from the disturbances d_k of plane p with k and k+1 both in
+    ``steps`` (K,)."""
+    d = run.d[steps[1:] & steps[:-1], p]
+    return estimators.fit("box", A_cl, [d], [np.zeros((0, d.shape[-1]))], [False], 0.5)
+
+
+def _coverage_metrics(log: dict, s: int, pushes) -> dict:
+    """Per-plane in-sample and time-split coverage of the kept errors (module doc)."""
+    out = {k: math.nan for plane in "xy" for k in (
+        f"cov_{plane}_inner", f"cov_{plane}_outer", f"cov_{plane}_heldout", f"e_size_{plane}")}
+    Acl, _, run = runs.run_errors(log, s, pushes, masks.WARMUP)
+    m = run.masks
+    walked = m.alive & ~m.push_window
+    early, late = splits.time_halves(m.kept)
     for p, plane in enumerate("xy"):
-        keys = [f"cov_{plane}_inner", f"cov_{plane}_outer", f"cov_{plane}_heldout",
-                f"e_size_{plane}"]
-        for k in keys:
-            out[k] = math.nan
-        Acl = acl[p]
-        if wmask.sum() < 1 or not inv.schur_stable(Acl):
-            continue
         try:
-            W = inv.estimate_w(w[:, p], wmask, "box")
-            E = inv.mrpi(Acl, W, min_halfwidth=W_MIN_HALFWIDTH)
-            c = inv.coverage(E, e[:, p], mask)
-            out[keys[0]], out[keys[1]] = c.inner, c.outer
-            out[keys[3]] = float(E.volume())
-            tr = wmask & (np.arange(wmask.size) + 1 < half)
-            te = mask & (np.arange(mask.size) >= half)
-            if tr.sum() >= 1 and te.sum() >= 1:
-                Wt = inv.estimate_w(w[:, p], tr, "box")
-                Et = inv.mrpi(Acl, Wt, min_halfwidth=W_MIN_HALFWIDTH)
-                out[keys[2]] = inv.coverage(Et, e[:, p], te).outer
-        except Exception:   # degenerate W (e.g. a single sample): leave NaN
+            E = _box(Acl[p], run, p, walked).E
+        except ValueError:          # no disturbance sample, or A + BK not Schur stable
             continue
+        c = inv.coverage(E, run.kept_e(p))
+        out[f"cov_{plane}_inner"], out[f"cov_{plane}_outer"] = c.inner, c.outer
+        out[f"e_size_{plane}"] = float(E.volume())
+        try:
+            E_early = _box(Acl[p], run, p, early).E
+        except ValueError:
+            continue
+        out[f"cov_{plane}_heldout"] = inv.coverage(E_early, run.e[late, p]).outer
     return out
 
 
@@ -138,10 +141,10 @@ def push_recovery(d_path: np.ndarray, t: np.ndarray, t_push: float, failed: bool
     return peak, float(out[-1] + 1)
 
 
-def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
-                     push_time: float | None = None) -> dict:
-    """Summary metrics of scenario ``s`` of a log dict (see the module docstring);
-    ``push_time`` [s]: start of the scenario's first push (None: no push)."""
+def scenario_metrics(log: dict, s: int, with_coverage: bool = True, pushes=()) -> dict:
+    """Summary metrics of scenario ``s`` of a log dict (see the module docstring); ``pushes``:
+    the scenario's acting pushes as (start [s], duration [s]) (:func:`push_windows`)."""
+    push_time = min(t for t, _ in pushes) if len(pushes) else None
     mask = steplog.alive(log["valid"][s])       # steps before any failure
     n = int(mask.sum())
     m = {k: math.nan for k in SUMMARY_METRICS}
@@ -180,7 +183,7 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True,
         for j, comp in enumerate("cpv"):
             m[f"emax_{plane}_{comp}"] = float(np.max(e[:, p, j]))
     if with_coverage:
-        m.update(_coverage_metrics(log, s, mask, du_all))
+        m.update(_coverage_metrics(log, s, pushes))
     return m
 
 
@@ -190,6 +193,6 @@ def active_pushes(cfg) -> list:
     return [p for p in cfg.disturbance.pushes if p.force > 0 and p.duration > 0]
 
 
-def first_push(cfg) -> float | None:
-    pushes = active_pushes(cfg)
-    return min(p.time for p in pushes) if pushes else None
+def push_windows(cfg) -> list[tuple[float, float]]:
+    """The scenario's acting pushes as (start [s], duration [s]) on the plant's clock."""
+    return [(float(p.time), float(p.duration)) for p in active_pushes(cfg)]

@@ -178,7 +178,7 @@ def invariant_analysis(log, members: list[int], man: dict, warmup: int):
     found = []
     for s in members:
         cfg = sweep.config_from_dict(man["configs"][int(log["index"][s])])
-        pushes = [(p.time, p.duration) for p in metrics.active_pushes(cfg)]
+        pushes = metrics.push_windows(cfg)
         Acl, _, run = runs_mod.run_errors(log, s, pushes, warmup)
         found.append(run)
     return cov.consistency(Acl, found), found

@@ -393,7 +393,7 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
         arrays = store._log_to_arrays(log, b - a)
         arrays["index"] = np.arange(a, b, dtype=np.int64)
         arrays[store.RUN_ID] = np.full(b - a, run_id)
-        mets = chunk_metrics(arrays, [metrics.first_push(c) for c in chunk_cfgs[:b - a]],
+        mets = chunk_metrics(arrays, [metrics.push_windows(c) for c in chunk_cfgs[:b - a]],
                              with_coverage)
         for k in metrics.SUMMARY_METRICS:
             arrays[f"metric.{k}"] = np.asarray([m[k] for m in mets], np.float64)
@@ -417,18 +417,18 @@ def metric_workers(n: int, cpus: int | None = None) -> int:
     return max(1, min(cpus, n // METRICS_PER_WORKER))
 
 
-def metrics_block(arrays: dict, push_times: list, with_coverage: bool,
+def metrics_block(arrays: dict, pushes: list, with_coverage: bool,
                   x64: bool | None = None) -> list[dict]:
     """:func:`metrics.scenario_metrics` of every scenario of ``arrays`` (leading axis: the
-    scenarios, one push time each), on the host CPU; ``x64`` (a worker process): JAX's
-    float64 switch as the parent process has it, so the parts of the analysis written in JAX
-    compute in the same precision."""
+    scenarios, one list of push windows each, :func:`metrics.push_windows`), on the host CPU;
+    ``x64`` (a worker process): JAX's float64 switch as the parent process has it, so the parts
+    of the analysis written in JAX compute in the same precision."""
     import jax
     if x64 is not None and jax.config.jax_enable_x64 != x64:
         jax.config.update("jax_enable_x64", x64)
     with on_host():
-        return [metrics.scenario_metrics(arrays, s, with_coverage, t)
-                for s, t in enumerate(push_times)]
+        return [metrics.scenario_metrics(arrays, s, with_coverage, w)
+                for s, w in enumerate(pushes)]
 
 
 @contextlib.contextmanager
@@ -448,7 +448,7 @@ def _cpu_children():
                 os.environ[k] = v
 
 
-def chunk_metrics(arrays: dict, push_times: list, with_coverage: bool,
+def chunk_metrics(arrays: dict, pushes: list, with_coverage: bool,
                   workers: int | None = None) -> list[dict]:
     """Summary metrics of every scenario of a stored chunk, in scenario order.
 
@@ -457,12 +457,12 @@ def chunk_metrics(arrays: dict, push_times: list, with_coverage: bool,
     ``workers`` ≥ 2 (default :func:`metric_workers`) contiguous blocks of scenarios go to that
     many spawned processes; the numbers are the same as in one process (same code, float64
     numpy on the CPU, JAX in the parent's precision)."""
-    n = len(push_times)
+    n = len(pushes)
     workers = metric_workers(n) if workers is None else min(workers, n)
     if workers < 2:
-        return metrics_block(arrays, push_times, with_coverage)
+        return metrics_block(arrays, pushes, with_coverage)
     edges = np.linspace(0, n, workers + 1).astype(int)
-    blocks = [({k: v[a:b] for k, v in arrays.items()}, push_times[a:b])
+    blocks = [({k: v[a:b] for k, v in arrays.items()}, pushes[a:b])
               for a, b in zip(edges[:-1], edges[1:])]
     import jax
     ctx = multiprocessing.get_context("spawn")
@@ -473,5 +473,5 @@ def chunk_metrics(arrays: dict, push_times: list, with_coverage: bool,
     except (OSError, concurrent.futures.process.BrokenProcessPool):
         # no worker processes here (a sandbox without fork/spawn, a killed worker): the
         # chunk's simulation is done and must not be lost, so compute in this process
-        return metrics_block(arrays, push_times, with_coverage)
+        return metrics_block(arrays, pushes, with_coverage)
     return [m for part in parts for m in part]

@@ -56,7 +56,7 @@ from typing import Sequence
 import numpy as np
 
 from hlip_jax import steplog
-from hlip_jax.metrics import SUMMARY_METRICS, active_pushes
+from hlip_jax.metrics import SUMMARY_METRICS, push_windows
 from hlip_jax import sweep as sweep_mod
 
 __all__ = [
@@ -482,11 +482,6 @@ def _read_csv_table(p: Path) -> tuple[list[str], list[dict]]:
 COVERAGE = "coverage.csv"
 
 
-def _pushes(cfg) -> list[tuple[float, float]]:
-    """The scenario's acting pushes as (start [s], duration [s]) on the plant's clock."""
-    return [(float(p.time), float(p.duration)) for p in active_pushes(cfg)]
-
-
 def _group_key(z: dict, j: int, cfg, frame: str) -> tuple:
     """Runs analysed together share the path, plant, analysis frame and S2S model (A, B, K)."""
     mats = [np.asarray(z[k][j], np.float64).ravel() for k in ("A", "B", "K_gain", "anchor")]
@@ -516,7 +511,7 @@ def analysed_runs(out_dir, warmup: int, chosen=None):
             if (chosen is not None and int(i) not in chosen) or not steplog.alive(z["valid"][j]).any():
                 continue
             cfg = sweep_mod.config_from_dict(configs[int(i)])
-            Acl, frame, run = runs.run_errors(z, j, _pushes(cfg), warmup)
+            Acl, frame, run = runs.run_errors(z, j, push_windows(cfg), warmup)
             yield int(i), cfg, _group_key(z, j, cfg, frame), Acl, frame, run
 
 

@@ -447,7 +447,7 @@ def test_chunk_metrics_in_worker_processes_equal_one_process():
     in scenario order, bit for bit (same float64 code; NaN where a metric is undefined)."""
     cfgs = list(_tiny().scenarios)
     arrays = store._log_to_arrays(fake_simulate(cfgs), len(cfgs))
-    pushes = [metrics.first_push(c) for c in cfgs]
+    pushes = [metrics.push_windows(c) for c in cfgs]
     one = runner.chunk_metrics(arrays, pushes, True, workers=1)
     two = runner.chunk_metrics(arrays, pushes, True, workers=3)
     assert len(one) == len(two) == len(cfgs)
@@ -471,7 +471,7 @@ def test_chunk_metrics_fall_back_to_this_process_without_workers(monkeypatch):
 
     cfgs = list(_tiny().scenarios)[:4]
     arrays = store._log_to_arrays(fake_simulate(cfgs), len(cfgs))
-    pushes = [metrics.first_push(c) for c in cfgs]
+    pushes = [metrics.push_windows(c) for c in cfgs]
     one = runner.chunk_metrics(arrays, pushes, False, workers=1)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", NoPool)
     two = runner.chunk_metrics(arrays, pushes, False, workers=2)

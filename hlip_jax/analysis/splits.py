@@ -16,6 +16,11 @@ training and the others to test (:func:`interleave`): deterministic and about ha
 side; with an even number of values the largest is held out, so a held-out speed lies between
 trained ones or, for the largest, beyond them.  A value
 split (:func:`by_values`, the CLI's ``--train-on FIELD=V1,V2``) trains on the listed values.
+
+Within one run (the summary's per-scenario figure, :mod:`hlip_jax.metrics`) the steps are
+split in time instead (:func:`time_halves`): the first half of the kept steps trains, the
+second tests.  Steps of one run are correlated, so this is a consistency check of that run,
+not a held-out statistic.
 """
 
 from __future__ import annotations
@@ -71,3 +76,11 @@ def by_values(keys: Sequence, train_values) -> tuple[np.ndarray, np.ndarray]:
     ks = list(keys)
     return (np.array([i for i, k in enumerate(ks) if k in want], int),
             np.array([i for i, k in enumerate(ks) if k not in want], int))
+
+
+def time_halves(kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(early, late) step masks (K,) of one run: the first ⌊n/2⌋ of its n kept steps, and the
+    others."""
+    kept = np.asarray(kept, bool)
+    early = kept & (np.cumsum(kept) <= int(kept.sum()) // 2)
+    return early, kept & ~early
