@@ -382,10 +382,11 @@ def _start(scn: Scenario, static: Static):
     plan0, ok0 = _plan(scn, static, scn.x0, jnp.zeros((), dt), stance0,
                        _cold_plan(scn, static.horizon, static.viability), 0)
     u_h0 = plan0.u[0]
-    u_r0 = u_h0  # x_R,0 = x_H,0
+    u_r0 = u_h0          # the first step is the plan's: the robot starts standing
     heading0 = paths.reference(scn.path, jnp.zeros((), dt)).heading
     pstate = plant.init(scn.plant, scn.x0, u_r0, stance0, scn.key, heading0)
-    carry0 = Carry(x_h=scn.x0, u_h=u_h0, x_r=scn.x0, x_e=scn.x0, u_r=u_r0, plan=plan0, pstate=pstate,
+    x_r0 = jnp.asarray(plant.measure(scn.plant, pstate, stance0), dt)   # measured, not x_H,0
+    carry0 = Carry(x_h=scn.x0, u_h=u_h0, x_r=x_r0, x_e=x_r0, u_r=u_r0, plan=plan0, pstate=pstate,
                    alive=jnp.bool_(True), qp_ok=ok0, t_plant=jnp.zeros((), dt))
     return carry0, ok0
 

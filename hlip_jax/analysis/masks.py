@@ -4,10 +4,11 @@ Per run of K logged steps (k = 0 … K−1; :mod:`hlip_jax.steplog`):
 
 * ``alive`` (K,): steps before the first invalid one (:func:`hlip_jax.steplog.alive`); a
   fallen run's steps end at its fall.
-* ``settled`` (K,): k ≥ max(1, warm-up).  e_0 is never counted: the loop starts the H-LIP
-  from the robot's commanded start (x_H,0 = x_R,0 as logged), so e_0 = 0 by construction and
-  says nothing about E.  The next ``warmup`` − 1 steps are the start's transient (the robot
-  leaves standing for its first steps), not the steady disturbance W is meant to bound.
+* ``settled`` (K,): k ≥ max(1, warm-up).  e_0 is never counted: x_R,0 is the robot standing
+  on both feet (:attr:`hlip_jax.plants.Plant.measure`; on the point-mass H-LIP the H-LIP's own
+  start, e_0 = 0), not a walking pre-impact state, so e_0 says nothing about E.  The next
+  ``warmup`` − 1 steps are the start's transient (the robot leaves standing for its first
+  steps), not the steady disturbance W is meant to bound.
 * ``push_window`` (K,): from the first error after a push starts until the error is back
   inside the run's *pre-push set*, the box [min e, max e] per plane and coordinate of the
   run's settled errors before the push (both planes, every coordinate of the analysed state);

@@ -9,6 +9,7 @@ records import their modules on first use, so that naming or validating a plant 
     plant = plants.load("cassie")
     params = plant.make_params(cfg, n_push, t_step, non_ideal, terrain)
     state = plant.init(params, x0, u0, stance0, key, heading0)
+    x_r0 = plant.measure(params, state, stance0)             # the robot's S2S state at t = 0
     state, result = plant.step(params, state, cmd)           # + plant.settings(cfg) if any
 """
 
@@ -30,6 +31,8 @@ class Plant(NamedTuple):
       ground ("flat", "step": a scenario has a step, "rough": one has rough ground), so that
       every chunk has one shape and one program.
     init: (params, x0 (2, 3), u0 (2,), stance0, key, heading0) -> state.
+    measure: (params, state, stance) -> the robot's S2S state [c, p, v] per world plane (2, 3)
+      as the plant's state holds it (the closed loop's x_R,0 at the start).
     step: (params, state, cmd[, settings]) -> (state, StepResult).
     step_with_log: like ``step`` and also the per-tick log, or None (no ticks to log).
     step_span: cfg -> longest walking step of the scenario [s] (static sizes).
@@ -39,6 +42,7 @@ class Plant(NamedTuple):
     name: str
     make_params: Callable
     init: Callable
+    measure: Callable
     step: Callable
     step_with_log: Optional[Callable]
     step_span: Callable

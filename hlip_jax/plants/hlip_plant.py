@@ -126,6 +126,12 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
     return State(x=x0, u=u0, time=jnp.zeros((), x0.dtype), key=key)
 
 
+def measure(params: Params, state: State, stance) -> jax.Array:
+    """The point-mass H-LIP's state is its S2S state [c, p, v] (2, 3)."""
+    del params, stance
+    return state.x
+
+
 def step(params: Params, state: State, cmd: StepCommand):
     c, p, v = state.x[:, 0], state.x[:, 1], state.x[:, 2]
     c_start = c - p
@@ -153,7 +159,7 @@ def step_span(cfg: ScenarioConfig) -> float:
     return cfg.hlip.t_ssp + cfg.hlip.t_dsp
 
 
-PLANT = Plant(name="hlip",
+PLANT = Plant(name="hlip", measure=measure,
               make_params=lambda cfg, n_push, t_step=0.0, non_ideal=False, terrain="flat":
               make_params(cfg, n_push),
               init=init, step=step, step_with_log=None, step_span=step_span,

@@ -206,6 +206,15 @@ def init(params: Params, x0, u0, stance0, key, heading0=0.0) -> State:
                  yaw=outputs.wrap(th), land_xy=feet[0, :2], key=key, real=real)
 
 
+def measure(params: Params, state: State, stance) -> jax.Array:
+    """The robot's S2S state [c, p, v] (2, 3) in ``state``: the COM and its velocity, p from the
+    ``stance`` foot's ankle pivot (:func:`tick.robot_state`), on the controller's model.  At the
+    start (standing on both feet, stance the right foot) p is the COM's offset from the right
+    ankle, not the H-LIP's start."""
+    del params
+    return tick.robot_state(model.robot_terms(cassie(), state.d), stance)[0]
+
+
 def _floats_as(tree, dt):
     """``tree`` with its floating leaves in dtype ``dt`` (integer and bool leaves as they are)."""
     return jax.tree.map(lambda a: jnp.asarray(a, dt) if jnp.issubdtype(jnp.asarray(a).dtype, jnp.floating)
@@ -369,5 +378,5 @@ def settings(cfg, robots: int = 1) -> tick.Settings:
                          condense=cfg.cassie.condense, terms=cfg.cassie.terms)
 
 
-PLANT = Plant(name="cassie", make_params=make_params, init=init, step=step,
-              step_with_log=step_with_log, step_span=step_span, settings=settings)
+PLANT = Plant(name="cassie", make_params=make_params, init=init, measure=measure,
+              step=step, step_with_log=step_with_log, step_span=step_span, settings=settings)
