@@ -245,10 +245,18 @@ def gauge(S, points) -> np.ndarray:
     S's interior, which every set of this module has by construction."""
     N, b, c, sym = _facets(S)
     x = _f64(points) - c
-    r = x @ N.T
-    if sym:
-        return np.max(np.abs(r) / np.maximum(b, np.finfo(float).tiny), axis=-1)
-    return np.max(r / np.maximum(b - N @ c, np.finfo(float).tiny), axis=-1)
+    flat = x.reshape(-1, x.shape[-1])
+    scale = 1.0 / np.maximum(b if sym else b - N @ c, np.finfo(float).tiny)   # (F,)
+    rows = max(1, _GAUGE_BLOCK // max(1, N.shape[0]))     # bounds the (points × facets) block
+    out = np.empty(flat.shape[0])
+    for i in range(0, flat.shape[0], rows):
+        r = flat[i:i + rows] @ N.T
+        out[i:i + rows] = np.max((np.abs(r) if sym else r) * scale, axis=-1)
+    return out.reshape(x.shape[:-1])
+
+
+#: (points × facets) entries per block of :func:`gauge` (8 MB of float64)
+_GAUGE_BLOCK = 1 << 20
 
 
 class Scaled(NamedTuple):

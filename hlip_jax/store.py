@@ -375,9 +375,12 @@ def load_log(out_dir, indices: Sequence[int] | None = None) -> dict[str, np.ndar
 
 
 def _cell(v) -> str:
-    if isinstance(v, bool):
-        return str(v).lower()
-    if isinstance(v, float):
+    """A CSV cell: booleans lower-case, floats (numpy's too) as the shortest repr that reads
+    back exactly, nan and ±inf by name."""
+    if isinstance(v, (bool, np.bool_)):
+        return str(bool(v)).lower()
+    if isinstance(v, (float, np.floating)):
+        v = float(v)
         if math.isnan(v):
             return "nan"
         if math.isinf(v):

@@ -528,3 +528,14 @@ def test_resume_in_another_precision_is_refused(tmp_path, monkeypatch):
     monkeypatch.setattr(runner, "_x64", lambda: not jax.config.jax_enable_x64)
     with pytest.raises(store.StoreError, match="precision differs"):
         runner.run_sweep(sw, part, resume=True, progress=False, simulate=fake_simulate)
+
+
+def test_numpy_numbers_are_written_as_plain_numbers(tmp_path):
+    """coverage.csv cells from numpy scalars read back as numbers: no 'np.float64(…)' text
+    (numpy 2's repr), the same digits as Python's float repr, booleans in lower case."""
+    from hlip_jax.analysis import coverage as cov
+    row = {c: np.float64(0.1) + np.float64(0.2) for c in cov.COLUMNS}
+    row.update(note=np.bool_(True), state="[p, v]")
+    store.write_coverage_rows(tmp_path, [row])
+    text = (tmp_path / store.COVERAGE).read_text()
+    assert "np." not in text and repr(0.1 + 0.2) in text and ",true" in text

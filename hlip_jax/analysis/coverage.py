@@ -61,8 +61,17 @@ def _inside(E, pts: np.ndarray) -> np.ndarray:
     return np.asarray(E.contains(np.asarray(pts, np.float64), 1e-6), bool)
 
 
+def _hits(E, parts: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Membership of each part's points (k_i, n) in E, tested in one call (one facet set for
+    all of them) and split back per part."""
+    if not parts:
+        return []
+    inside = _inside(E, np.concatenate(parts))
+    return np.split(inside, np.cumsum([len(x) for x in parts])[:-1])
+
+
 def _run_hits(E, runs: Sequence[RunErrors], p: int) -> list[np.ndarray]:
-    return [_inside(E, r.kept_e(p)) for r in runs]
+    return _hits(E, [r.kept_e(p) for r in runs])
 
 
 def _run_covered(hits: list[np.ndarray], runs: Sequence[RunErrors]) -> np.ndarray:
@@ -98,7 +107,7 @@ def _level_rows(E, train, test, p: int) -> tuple[dict, dict]:
     k, n = int(cov_te.sum()), len(test)
     lo, hi = stats.clopper_pearson(k, n)
     push = [r for r in test if (r.masks.push_window & r.masks.alive).any()]
-    push_hits = [_inside(E, r.window_e(p)) for r in push]
+    push_hits = _hits(E, [r.window_e(p) for r in push])
     run = {"test_samples": n, "covered": k, "coverage": k / n, "ci_low": lo, "ci_high": hi,
            "insample_coverage": float(cov_tr.mean()), "push_test_runs": len(push),
            "push_test_samples": len(push),
