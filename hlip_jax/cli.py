@@ -48,6 +48,8 @@ from pathlib import Path
 from hlip_jax import plants, resources, xla_flags
 
 EXIT_OK, EXIT_INCOMPLETE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
+#: scenarios a run takes without --max-scenarios (a 1024-robot GPU chunk 64 times over)
+MAX_RUN_SCENARIOS = 65_536
 PROG = "hlip-sweep"
 
 
@@ -167,6 +169,9 @@ def _add_run(sub) -> None:
                        "(manifest.json, chunks/, summary.csv), then write the report.")
     r.add_argument("sweep", metavar="SWEEP", help="sweep file, or the name of a shipped sweep")
     r.add_argument("--out", metavar="DIR", help="results directory (default results/<sweep name>)")
+    r.add_argument("--max-scenarios", type=_positive_int, metavar="N", default=MAX_RUN_SCENARIOS,
+                   help=f"refuse a sweep of more than N scenarios before building any "
+                   f"(default {MAX_RUN_SCENARIOS}; raise it for a larger run)")
     r.add_argument("--batch", type=_positive_int, metavar="N",
                    help="scenarios per chunk (one compiled call); default: at most 16 on CPU "
                    "(1024 on accelerators), balanced so the last chunk is nearly full; with "
@@ -397,8 +402,15 @@ def cmd_run(args) -> int:
                         f"{err.strerror or err}") from None
     if not_dir:
         raise UserError(f"--out {out}: exists and is not a directory")
+    if out.is_symlink() and not out.exists():
+        raise UserError(f"--out {out}: a symbolic link to a missing path; allowed: a directory "
+                        "or a new path")
     if args.resume and args.overwrite:
         raise UserError("--resume and --overwrite exclude each other")
+    if sw.n_scenarios > args.max_scenarios:
+        raise UserError(f"{sw.name}: {sw.n_scenarios} scenarios; allowed: at most "
+                        f"{args.max_scenarios} per run (--max-scenarios N raises the limit; "
+                        "--limit N runs the first N)")
     sim = _simulate_override()
     if args.ticks is not None and args.distributed:
         raise UserError("--ticks and --distributed exclude each other: replay the scenarios "

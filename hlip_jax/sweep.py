@@ -1167,7 +1167,11 @@ def _resolve_extends(p: Path, source: str, chain: tuple) -> tuple[dict, str]:
         raise SweepError(f"{source}: extends: {parent!r} extends this file again (a cycle)")
     if len(chain) + 1 >= MAX_EXTENDS:
         raise SweepError(f"{source}: extends: more than {MAX_EXTENDS} files in the chain")
-    base_doc, base_text = _resolve_extends(q, f"{source}: extends {parent!r}", chain + (p.resolve(),))
+    where = f"{source}: extends {parent!r}"
+    base_doc, base_text = _resolve_extends(q, where, chain + (p.resolve(),))
+    for k in base_doc:          # a file that is not a sweep is named, not the one extending it
+        if k not in TOP_KEYS:
+            raise SweepError(f"{where}: {_unknown_key(k, TOP_KEYS, '')}")
     merged = {k: v for k, v in base_doc.items() if k != "name"}
     for k, v in doc.items():
         both_tables = isinstance(v, dict) and isinstance(merged.get(k), dict)

@@ -936,3 +936,30 @@ def test_damaged_results_files_are_one_line(name, data, frag, tmp_path, tiny_swe
     (out / name).write_bytes(data)
     code, _, err = cli(capsys, "report", out)
     assert frag in _one_line_error(code, err) and name.split("/")[-1] in err
+
+
+def test_run_refuses_a_huge_grid_before_building_it_and_a_dangling_out(tmp_path, capsys):
+    """A 9,999,000-scenario grid is refused in one line naming the limit and the flag before any
+    scenario is built (the check reads the grid's count); --max-scenarios raises the limit; an
+    --out that is a symbolic link to nothing is named as such."""
+    import time
+    seeds = ", ".join(str(i) for i in range(9999))
+    alphas = ", ".join(str(0.001 * (i + 1)) for i in range(1000))
+    p = tmp_path / "huge.toml"
+    p.write_text('name = "huge"\n[base]\nplant = "hlip"\nduration = 2.0\n[[paths]]\n'
+                 f'shape = "line"\n[grid.product]\nseed = [{seeds}]\n"mpc.alpha" = [{alphas}]\n')
+    t0 = time.perf_counter()
+    assert main(["run", str(p), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert "9999000 scenarios; allowed: at most 65536 per run (--max-scenarios N" in err
+    assert time.perf_counter() - t0 < 30 and not (tmp_path / "r").exists()
+    assert main(["run", str(p), "--out", str(tmp_path / "r"), "--max-scenarios", "1000"]) == 2
+    assert "at most 1000 per run" in capsys.readouterr().err
+    small = tmp_path / "small.toml"
+    small.write_text('name = "s"\n[base]\nplant = "hlip"\nduration = 2.0\n[[paths]]\n'
+                     'shape = "line"\n')
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    capsys.readouterr()
+    assert main(["run", str(small), "--out", str(tmp_path / "dangling")]) == 2
+    assert "a symbolic link to a missing path" in capsys.readouterr().err
+    assert not (tmp_path / "nowhere").exists()

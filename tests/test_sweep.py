@@ -277,6 +277,8 @@ def test_extends_grid_kinds_replace_one_by_one(tmp_path):
     ({"a.toml": "extends = 3"}, "a.toml", "extends: expected the path of another sweep file"),
     ({"a.toml": 'extends = "b"', "b.toml": "[base\n"}, "a.toml", "not valid TOML"),
     ({f"s{i}.toml": f'extends = "s{i + 1}"' for i in range(12)}, "s0.toml", "more than 8 files"),
+    ({"a.toml": 'extends = "b"', "b.toml": "[foo]\nbar = 1\n"}, "a.toml",
+     r"a.toml: extends 'b': foo: unknown key \(known keys: name"),
 ])
 def test_extends_errors(tmp_path, files, start, expect):
     for name, text in files.items():
