@@ -6,14 +6,10 @@ chunk through :mod:`hlip_jax.progress`).
 
 from __future__ import annotations
 
-import concurrent.futures
-import concurrent.futures.process
 import contextlib
 import dataclasses
 import functools
 import math
-import multiprocessing
-import os
 import sys
 import time
 from pathlib import Path
@@ -22,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from hlip_jax import impl, metrics, progress, store
+from hlip_jax import workers as workers_mod
 from hlip_jax.analysis import settings as analysis_settings
 from hlip_jax import sweep as sweep_mod
 
@@ -413,39 +410,16 @@ def metric_workers(n: int, cpus: int | None = None) -> int:
     """Worker processes for the metrics of a chunk of ``n`` scenarios: one per
     :data:`METRICS_PER_WORKER` scenarios, at most one per CPU; below 2 the chunk is done
     in this process (a 16-scenario CPU chunk is, a 1024-robot GPU chunk is not)."""
-    cpus = (os.cpu_count() or 1) if cpus is None else cpus
-    return max(1, min(cpus, n // METRICS_PER_WORKER))
+    return workers_mod.count(n, METRICS_PER_WORKER, cpus)
 
 
-def metrics_block(arrays: dict, pushes: list, with_coverage: bool,
-                  x64: bool | None = None) -> list[dict]:
+def metrics_block(arrays: dict, pushes: list, with_coverage: bool) -> list[dict]:
     """:func:`metrics.scenario_metrics` of every scenario of ``arrays`` (leading axis: the
-    scenarios, one list of push windows each, :func:`metrics.push_windows`), on the host CPU;
-    ``x64`` (a worker process): JAX's float64 switch as the parent process has it, so the parts
-    of the analysis written in JAX compute in the same precision."""
-    import jax
-    if x64 is not None and jax.config.jax_enable_x64 != x64:
-        jax.config.update("jax_enable_x64", x64)
+    scenarios, one list of push windows each, :func:`metrics.push_windows`), on the host
+    CPU."""
     with on_host():
         return [metrics.scenario_metrics(arrays, s, with_coverage, w)
                 for s, w in enumerate(pushes)]
-
-
-@contextlib.contextmanager
-def _cpu_children():
-    """Environment for worker processes spawned inside: JAX on the CPU only (a worker must not
-    claim the accelerator the simulation holds) and single-threaded BLAS."""
-    keys = ("JAX_PLATFORMS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-    old = {k: os.environ.get(k) for k in keys}
-    os.environ.update(dict.fromkeys(keys, "1"), JAX_PLATFORMS="cpu")
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def chunk_metrics(arrays: dict, pushes: list, with_coverage: bool,
@@ -455,23 +429,12 @@ def chunk_metrics(arrays: dict, pushes: list, with_coverage: bool,
     The coverage metrics cost about 0.5 s per Cassie scenario (an mRPI set of tens of terms per
     plane, twice): one 1024-robot GPU chunk would keep one CPU core busy for ten minutes.  With
     ``workers`` ≥ 2 (default :func:`metric_workers`) contiguous blocks of scenarios go to that
-    many spawned processes; the numbers are the same as in one process (same code, float64
-    numpy on the CPU, JAX in the parent's precision)."""
+    many spawned processes (:func:`hlip_jax.workers.starmap`); the numbers are the same as in
+    one process (same code, float64 numpy on the CPU, JAX in the parent's precision)."""
     n = len(pushes)
     workers = metric_workers(n) if workers is None else min(workers, n)
-    if workers < 2:
-        return metrics_block(arrays, pushes, with_coverage)
-    edges = np.linspace(0, n, workers + 1).astype(int)
-    blocks = [({k: v[a:b] for k, v in arrays.items()}, pushes[a:b])
+    edges = np.linspace(0, n, max(workers, 1) + 1).astype(int)
+    blocks = [({k: v[a:b] for k, v in arrays.items()}, pushes[a:b], with_coverage)
               for a, b in zip(edges[:-1], edges[1:])]
-    import jax
-    ctx = multiprocessing.get_context("spawn")
-    same = [with_coverage] * workers, [bool(jax.config.jax_enable_x64)] * workers
-    try:
-        with _cpu_children(), concurrent.futures.ProcessPoolExecutor(workers, mp_context=ctx) as ex:
-            parts = list(ex.map(metrics_block, *zip(*blocks), *same))
-    except (OSError, concurrent.futures.process.BrokenProcessPool):
-        # no worker processes here (a sandbox without fork/spawn, a killed worker): the
-        # chunk's simulation is done and must not be lost, so compute in this process
-        return metrics_block(arrays, pushes, with_coverage)
+    parts = workers_mod.starmap(metrics_block, blocks, workers)
     return [m for part in parts for m in part]

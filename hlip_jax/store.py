@@ -56,6 +56,7 @@ from typing import Sequence
 import numpy as np
 
 from hlip_jax import steplog
+from hlip_jax import workers as workers_mod
 from hlip_jax.metrics import SUMMARY_METRICS, push_windows
 from hlip_jax import sweep as sweep_mod
 
@@ -564,11 +565,18 @@ def analysis_settings(out_dir):
         raise StoreError(f"{Path(out_dir) / MANIFEST}: {err}") from None
 
 
-def coverage_rows(out_dir, settings=None, train_on: tuple | None = None) -> list[dict]:
+#: runs per worker process of :func:`coverage_rows` (below two workers' worth: in-process)
+COVERAGE_RUNS_PER_WORKER = 128
+
+
+def coverage_rows(out_dir, settings=None, train_on: tuple | None = None,
+                  workers: int | None = None) -> list[dict]:
     """coverage.csv rows of a results directory (:func:`hlip_jax.analysis.coverage.group_rows`)
     for every split of ``settings`` (the directory's own when None), per group.  ``train_on`` =
     (field, values), e.g. ("path", ["circle"]): one value split instead, W from the runs whose
-    swept ``field`` takes one of ``values``, coverage on the others of the group."""
+    swept ``field`` takes one of ``values``, coverage on the others of the group.  The groups
+    go to ``workers`` processes (default: one per :data:`COVERAGE_RUNS_PER_WORKER` runs, at
+    most one per CPU; :func:`hlip_jax.workers.starmap`), with the same rows as in one."""
     from hlip_jax.analysis import coverage as cov, splits
     settings = analysis_settings(out_dir) if settings is None else settings
     runs_list = list(analysed_runs(out_dir, settings.warmup))
@@ -582,7 +590,7 @@ def coverage_rows(out_dir, settings=None, train_on: tuple | None = None) -> list
                               "test runs take other values of " + field), list(train_on[1]))]
     else:
         todo = [(splits.split(n), None) for n in settings.splits]
-    rows = []
+    calls = []
     for sp, values in todo:
         seen: dict = {}
         for g in _groups(runs_list, sp.field):
@@ -591,9 +599,11 @@ def coverage_rows(out_dir, settings=None, train_on: tuple | None = None) -> list
             label += f" #{seen[label]}" if seen[label] > 1 else ""
             if values is None and len({k for k in g["keys"] if k is not None}) < 2:
                 continue            # the field is not varied in this group: nothing held out
-            rows += cov.group_rows(label, g["Acl"], g["runs"], g["keys"], cov.PLANES[g["frame"]],
-                                   sp, settings.q, settings.methods, train_values=values)
-    return rows
+            calls.append((label, g["Acl"], g["runs"], g["keys"], cov.PLANES[g["frame"]], sp,
+                          settings.q, settings.methods, values))
+    if workers is None:
+        workers = workers_mod.count(len(runs_list), COVERAGE_RUNS_PER_WORKER)
+    return [r for part in workers_mod.starmap(cov.group_rows, calls, workers) for r in part]
 
 
 def coverage_sets(out_dir, split: str = "seed", settings=None) -> list[tuple]:

@@ -242,3 +242,16 @@ def test_run_calibrated_set_covers_q_of_200_held_out_runs(many_runs, q):
                 assert r["e_half_c"] < 1.5 * r["err_max_c"]
                 covs.append(r["coverage"])
     assert q - 0.05 <= float(np.mean(covs)) <= q + 0.08, covs
+
+
+def test_coverage_rows_in_worker_processes_equal_one_process(hlip_run):
+    """The groups spread over two spawned processes give the same rows, in the same order, as
+    one process (NaN where one process has NaN; every other cell equal)."""
+    one = store.coverage_rows(hlip_run, workers=1)
+    two = store.coverage_rows(hlip_run, workers=2)
+    assert len(one) == len(two) > 0
+    for a, b in zip(one, two):
+        assert a.keys() == b.keys()
+        for k in a:
+            both_nan = isinstance(a[k], float) and math.isnan(a[k]) and math.isnan(b[k])
+            assert both_nan or a[k] == b[k], (k, a[k], b[k])
