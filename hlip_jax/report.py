@@ -37,7 +37,7 @@ from typing import Sequence
 
 import numpy as np
 
-from hlip_jax import metrics, set_figures, steplog, store, sweep, tick_report
+from hlip_jax import metrics, set_figures, steplog, store, sweep, tick_report, workers
 from hlip_jax.analysis import errors
 
 __all__ = ["ReportError", "write_report", "FIGURE_KINDS"]
@@ -636,6 +636,20 @@ def _header_section(doc: "_Doc", man: dict, rows: list[dict], out: Path) -> str:
     return title
 
 
+#: scenarios per worker process drawing the path sections (below two workers' worth: in-process)
+REPORT_RUNS_PER_WORKER = 128
+
+
+def path_part(out: Path, man: dict, pname: str, rep: dict, members_rows: list[dict],
+              fig_dir: Path) -> tuple[list, list]:
+    """One path's section (:func:`_path_section`) on its own: (the report parts, its rows of
+    the coverage summary), so that path sections can be drawn in worker processes
+    (:func:`hlip_jax.workers.starmap`) and joined in path order."""
+    doc = _Doc()
+    summary = _path_section(doc, out, man, pname, rep, members_rows, fig_dir)
+    return doc.parts, summary
+
+
 def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
                   members_rows: list[dict], fig_dir: Path) -> list[list]:
     """One path: its figures, its invariant sets and coverage tables; returns its rows of the
@@ -839,8 +853,12 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
     title = _header_section(doc, man, rows, out)
     across_run_section(doc, out)
     cov_summary = []
-    for pname, (rep, members_rows) in _representatives(man, rows).items():
-        cov_summary += _path_section(doc, out, man, pname, rep, members_rows, fig_dir)
+    calls = [(out, man, pname, rep, members_rows, fig_dir)
+             for pname, (rep, members_rows) in _representatives(man, rows).items()]
+    n_workers = workers.count(len(rows), REPORT_RUNS_PER_WORKER) if len(calls) > 1 else 1
+    for parts, summary in workers.starmap(path_part, calls, n_workers):
+        doc.parts += parts
+        cov_summary += summary
     _closing_sections(doc, man, rows, fig_dir, heatmap_axes, cov_summary)
     html_p, md_p = out / "report.html", out / "report.md"
     store.write_atomic(html_p, doc.html(title, out))
