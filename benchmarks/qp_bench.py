@@ -45,8 +45,8 @@ def parse():
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--osqp-problems", type=int, default=300)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--write", action="store_true", help="write the table into BENCHMARKS.md")
-    p.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "..", "BENCHMARKS.md"))
+    p.add_argument("--write", action="store_true", help="write the table into docs/benchmarks/qp_solver.md")
+    p.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "..", "docs", "benchmarks", "qp_solver.md"))
     return p.parse_args()
 
 

@@ -200,20 +200,20 @@ class CassieConfig:
     qp_loop: str = spec("while", doc="the CLF-QP's ADMM block loop (static): 'while' stops when every "
                         "robot's QP of the batch has converged; 'fixed' always runs the whole budget in a "
                         "loop of static trip count (the same torques; on an H100 2.2x slower at batch 32, "
-                        "BENCHMARKS.md); 'compact' is the while loop with straggler compaction: the "
+                        "docs/benchmarks/cassie_gpu.md); 'compact' is the while loop with straggler compaction: the "
                         "robots whose QPs are still unsolved continue in a smaller batch (the same "
-                        "torques up to rounding; for large batches on a GPU, BENCHMARKS.md)",
+                        "torques up to rounding; for large batches on a GPU, docs/benchmarks/cassie_gpu.md)",
                         choices=("while", "fixed", "compact"))
     qp_linsys: str = spec("cholesky", doc="how the CLF-QP's ADMM solves its linear system each iteration "
                           "(static): 'cholesky' (two triangular solves with the factor) or 'inverse' "
                           "(the inverse formed once per factorisation, then a matrix-vector product; "
                           "the same solutions within the solver's tolerance, faster on a GPU, "
-                          "BENCHMARKS.md)", choices=("cholesky", "inverse"))
+                          "docs/benchmarks/cassie_gpu.md)", choices=("cholesky", "inverse"))
     qp_kernel: str = spec("xla", doc="how the CLF-QP's ADMM iterations run (static): 'xla' (each "
                           "iteration as XLA operations) or 'fused' (each block of iterations as one "
                           "Pallas kernel that keeps the problem on chip; needs qp_linsys = 'inverse'; "
                           "compiled on GPUs, interpreted elsewhere, so only for GPUs; the same "
-                          "iterations up to float rounding, BENCHMARKS.md)", choices=("xla", "fused"))
+                          "iterations up to float rounding, docs/benchmarks/cassie_gpu.md)", choices=("xla", "fused"))
     condense: str = spec("eigen", doc="how the CLF-QP's model solves for the constraint forces "
                          "(static): 'eigen' (G's eigendecomposition with a relative cut of 1e-9, "
                          "the validated controller's; in float32 it inverts round-off along the "
@@ -226,7 +226,7 @@ class CassieConfig:
                       "('mjx', the validated controller's) or by dense array programs over the "
                       "fixed body tree ('dense': the same terms within float rounding, tested "
                       "against C MuJoCo, without the tree scatters that XLA's deterministic GPU "
-                      "operations sort; BENCHMARKS.md)", choices=("mjx", "dense"))
+                      "operations sort; docs/benchmarks/cassie_gpu.md)", choices=("mjx", "dense"))
     qp_rho_start: str = spec("previous", doc="the ADMM step size rho each tick's CLF-QP starts from: "
                              "the previous tick's final rho ('previous', as OSQP keeps rho between "
                              "warm-started solves; about 40 % fewer iterations per tick, "

@@ -10,7 +10,7 @@ A sweep's ``[impl]`` table names a profile (``profile = "auto"`` when absent):
     solve, the eigen condensation, MJX's whole-body terms, MJX-JAX physics.
 ``gpu``
     fills the Cassie implementation fields the sweep file does not set with the settings
-    measured fastest on an H200 at thousands of robots (BENCHMARKS.md): ``qp_linsys =
+    measured fastest on an H200 at thousands of robots (docs/benchmarks/cassie_gpu.md): ``qp_linsys =
     "inverse"``, ``qp_kernel = "fused"`` (where the solve is the inverse), ``condense =
     "deflated"``, ``terms = "dense"``, and ``physics = "warp"`` where ``warp-lang`` imports.  On the validation set
     these walk as the CPU settings do (138 of 148 runs with each; docs/cassie_validation).

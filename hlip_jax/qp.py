@@ -33,7 +33,7 @@ as every problem is done; without it they run in a loop of static trip count
 ⌈max_iter / check_interval⌉ (no data-dependent exit).  A problem's iterates are the same either
 way: the extra blocks only touch problems that are already frozen.  In the Cassie tick on an H100
 the while loop is the faster one (the blocks it saves cost more than its predicate's trips to the
-host; BENCHMARKS.md).  A batch solved in one piece on an accelerator runs with *straggler
+host; docs/benchmarks/cassie_gpu.md).  A batch solved in one piece on an accelerator runs with *straggler
 compaction* (:func:`_compacted`): the problems still unfinished when half the batch
 (1/``Settings.compaction_shrink``) is left continue in a batch of that size, and so on, so the
 work follows the distribution of iteration counts instead of the slowest problem.  Status

@@ -534,7 +534,7 @@ def _per_device(fn, mesh, replicated: int = 0):
     ``replicated`` arguments given whole to every device.  Scenarios never communicate, so
     the devices never do either: left to XLA's partitioner, the tick loop's stopping test
     (any robot of the batch still in its step) became a cross-device reduction every tick,
-    83× slower in a toy loop on two CPU devices (BENCHMARKS.md, "CPU cores as devices")."""
+    83× slower in a toy loop on two CPU devices (docs/benchmarks/sweeps.md, "CPU cores as devices")."""
     from jax.sharding import PartitionSpec
     split = PartitionSpec(mesh.axis_names[0])
 
@@ -582,7 +582,7 @@ def _programs(mesh: Optional[jax.sharding.Mesh]):
     """(whole run, start, segment) programs for a batch on ``mesh`` (None: one device).
     Several CPU devices get per-device loops (:func:`_per_device`); several GPUs keep the
     loops XLA partitions (the per-device programs crashed XLA's GPU compile on two H200s,
-    jax 0.11.2: BENCHMARKS.md, "CPU cores as devices")."""
+    jax 0.11.2: docs/benchmarks/sweeps.md, "CPU cores as devices")."""
     if mesh is None or mesh.devices.flat[0].platform != "cpu":
         return _run_whole, _start_batch, _segment_batch
     if mesh not in _per_mesh:

@@ -2,7 +2,7 @@
 
 The persistent compilation cache (:mod:`hlip_jax.compile_cache`) saves XLA's compile, but JAX
 finds a cached executable only after tracing the Python closed loop and lowering it to
-StableHLO: about 10 s of a warm 2-core-CPU start of ``sweeps/paper.toml`` (BENCHMARKS.md,
+StableHLO: about 10 s of a warm 2-core-CPU start of ``sweeps/paper.toml`` (docs/benchmarks/sweeps.md,
 "warm start").  This module keeps that traced and lowered program as well, in JAX's export
 format (:func:`jax.export.export`, serialized StableHLO), and on a rerun calls the loaded
 program instead of tracing again; XLA's persistent cache then supplies its executable.

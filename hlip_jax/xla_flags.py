@@ -3,7 +3,7 @@
 **Deterministic GPU operations.** On a GPU, XLA implements scatters and some reductions with
 atomic additions whose order varies from run to run.  The closed loop is chaotic, so those
 last-bit differences grow: runs of the same five paper scenarios on one H200 differed by
-up to 10 cm in the COM after ten steps (BENCHMARKS.md, "GPU runs repeat bit for bit").
+up to 10 cm in the COM after ten steps (docs/benchmarks/sweeps.md, "GPU runs repeat bit for bit").
 ``--xla_gpu_deterministic_ops=true`` makes XLA use order-fixed implementations; with it the two
 runs were equal bit for bit, at the same speed for that batch.  The CPU backend ignores it
 (its operations are deterministic).
@@ -13,7 +13,7 @@ core: on the 2-core machine a sweep ran faster pinned to one core than free on t
 ``--xla_force_host_platform_device_count=N`` (N = the cores this process may use) the CPU
 backend has N devices and a sweep's scenarios are split over them, each device running its
 share of the loop on its own core (:func:`hlip_jax.rollout.run`; 1.2–1.4× on 2 cores,
-BENCHMARKS.md, "CPU cores as devices").  jaxlib 0.10's LAPACK kernels wait on XLA's CPU
+docs/benchmarks/sweeps.md, "CPU cores as devices").  jaxlib 0.10's LAPACK kernels wait on XLA's CPU
 thread pool for their batch's tasks; with every pool thread busy running a device's program
 none is left for those tasks and the process hangs, so the pool is given 2N threads
 (``PJRT_NPROC``; jaxlib 0.11 no longer splits the batch).

@@ -78,7 +78,7 @@ def physics(cassie: model.Cassie, d: mjx.Data, ctrl, force, mx=None, backend: st
         return warp_physics.step(cassie.mj_model, mx, d, SUBSTEPS, robots)
     # traced once and unrolled when lowered: tracing the MJX step SUBSTEPS times made up a
     # third of the closed loop's tracing (which every run pays, compilation cache or not),
-    # while a rolled loop would cost the GPU a loop trip per substep (BENCHMARKS.md)
+    # while a rolled loop would cost the GPU a loop trip per substep (docs/benchmarks/compile.md)
     return jax.lax.fori_loop(0, SUBSTEPS, lambda _, d: mjx.step(mx, d), d, unroll=True)
 
 

@@ -37,7 +37,7 @@ force G⁺ r, computed one of two ways (``solve``):
 
   by one Cholesky factorisation (:func:`min_norm_forces`): float32 stays within 3e-5 of
   float64, and a batched Cholesky is several times cheaper than a batched eigendecomposition
-  on a GPU (BENCHMARKS.md).
+  on a GPU (docs/benchmarks/cassie_gpu.md).
 
 The result is the affine map
 

@@ -6,7 +6,7 @@ dof motion axes ``cdof`` and their derivatives, body velocities, the mass matrix
 force h and the passive force.  MJX computes them with scans over the body tree whose
 reverse accumulations are ``segment_sum`` scatters, and its hinge quaternions are built
 with scatters too; under XLA's deterministic GPU operations (the CLI's) every such scatter
-is sorted first (BENCHMARKS.md, "Both physics backends").  Here the tree is static, so each
+is sorted first (docs/benchmarks/cassie_gpu.md, "Both physics backends").  Here the tree is static, so each
 accumulation is a product with a constant 0/1 matrix instead:
 
     subtree sums      Σ_{c ∈ subtree(b)} x_c          = S x,        S[b, c] = 1 if b ≼ c
