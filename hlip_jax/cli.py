@@ -481,7 +481,7 @@ def _init_distributed(jax) -> None:
         text = os.environ.get(env)
         if text is None:
             continue
-        if not text.isdigit():
+        if not (text.isascii() and text.isdigit()):
             raise UserError(f"{env}={text!r}: expected an integer >= 0")
         kw[key] = int(text)
     try:
@@ -773,7 +773,7 @@ def _scenario_index(d: Path, man: dict, text: str) -> int:
     names = [c["name"] for c in man["configs"]]
     if text in names:
         return names.index(text)
-    if text.isdigit() and int(text) < len(names):
+    if text.isascii() and text.isdigit() and int(text) < len(names):
         return int(text)
     raise UserError(f"SCENARIO: {text!r} is neither a scenario name of {d} nor an "
                     f"index; allowed: 0..{len(names) - 1} or a name from summary.csv")
@@ -931,7 +931,7 @@ def _render_runs(out: Path, chosen: list[int]) -> None:
     from hlip_jax import plants, report, store
     from hlip_jax.render import clip, files, motion
     man = store.read_manifest(out)
-    reps = report.representatives(man, store.read_summary(out)).values()
+    reps = report.representatives(man, store.read_summary(out, man)).values()
     logs = {i for i in reps if plants.load(man["configs"][i]["plant"]).step_with_log}
     with _render_errors():
         for mo in motion.replays(out, sorted(set(chosen) | logs)):
@@ -1027,13 +1027,19 @@ def main(argv=None) -> int:
     except OSError as err:
         return _os_error(args, err)
     except KeyboardInterrupt:
-        print(f"\n{PROG}: interrupted; finished chunks are kept: rerun with --resume",
-              file=sys.stderr)
+        print(f"\n{PROG}: interrupted{_after_stop(args)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Terminated:
-        print(f"{PROG}: terminated (SIGTERM); finished chunks are kept: rerun with --resume",
-              file=sys.stderr)
+        print(f"{PROG}: terminated (SIGTERM){_after_stop(args)}", file=sys.stderr)
         return EXIT_TERMINATED
+
+
+def _after_stop(args) -> str:
+    """What an interrupted command leaves: `run` keeps its finished chunks and resumes; the
+    other commands simulate nothing and are simply run again."""
+    if args.cmd == "run":
+        return "; finished chunks are kept: rerun with --resume"
+    return f"; run `{PROG} {args.cmd}` again"
 
 
 def _fail(msg: str, code: int) -> int:

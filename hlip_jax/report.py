@@ -597,7 +597,7 @@ def _read_results(out: Path, heatmap_axes) -> tuple[dict, list[dict]]:
             raise ReportError(f"{out}: the run is incomplete; finish it with `hlip-sweep run "
                               f"... --resume` first")
         store.write_summary(out)
-    rows = store.read_summary(out)
+    rows = store.read_summary(out, man)
     stored = sum(int(b) - int(a) for a, b in
                  store.chunk_ranges(int(man["n_scenarios"]), int(man["batch"]))[:len(store.chunk_files(out))])
     if sorted(r.get("index") for r in rows) != list(range(len(rows))) or len(rows) != stored:
@@ -777,7 +777,7 @@ def _tick_section(doc: "_Doc", out: Path) -> None:
     """The per-tick logs replayed into ``out/ticks`` (``hlip-sweep run --ticks``, ``hlip-sweep
     ticks``; :mod:`hlip_jax.tick_report`): each scenario's figure, how it was replayed and
     whether the replay is the stored run."""
-    logs = sorted((p for p in out.glob("ticks/*.json") if p.stem.isdigit()),
+    logs = sorted((p for p in out.glob("ticks/*.json") if p.stem.isascii() and p.stem.isdigit()),
                   key=lambda p: int(p.stem))
     if not logs:
         return

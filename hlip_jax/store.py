@@ -448,12 +448,50 @@ def write_summary(out_dir) -> Path:
     return p
 
 
-def read_summary(out_dir) -> list[dict]:
-    """Rows of ``summary.csv`` as dicts (numbers parsed where they parse)."""
+def read_summary(out_dir, man: dict | None = None) -> list[dict]:
+    """Rows of ``summary.csv`` as dicts (numbers parsed where they parse); StoreError where a
+    row's scenario cells (name, path, shape, plant, seed, swept fields) differ from the
+    manifest's config of its index (``man``, read if not given): rows edited or swapped."""
     p = Path(out_dir) / SUMMARY
     if not p.is_file():
         raise StoreError(f"{out_dir}: no {SUMMARY}")
-    return _read_csv(p)
+    rows = _read_csv(p)
+    configs = (man if man is not None else read_manifest(out_dir))["configs"]
+    for n, r in enumerate(rows, start=2):
+        bad = _summary_row_mismatch(r, configs)
+        if bad:
+            raise StoreError(f"{p}: line {n}: {bad} (edited or swapped rows); delete it and run "
+                             f"`hlip-sweep report` again to rewrite it from the chunks")
+    return rows
+
+
+def _summary_row_mismatch(row: dict, configs: list) -> str:
+    """What in summary row ``row`` differs from its scenario's config ('' if nothing)."""
+    i = row.get("index")
+    if not isinstance(i, int) or not 0 <= i < len(configs):
+        return f"index {_printable_cell(i)} is not a scenario index (0..{len(configs) - 1})"
+    cfg = configs[i]
+    want = {"name": cfg["name"], "path": cfg["swept"].get("path", ""),
+            "shape": cfg["path"]["shape"], "plant": cfg["plant"], "seed": cfg["seed"]}
+    want.update({k: v for k, v in cfg["swept"].items() if k != "path"})
+    for k, v in want.items():
+        if k in row and _cell(row[k]) != _cell(v) and not _same_number(row[k], v):
+            return (f"column {k!r} of scenario {i} is {_printable_cell(row[k])}, the manifest "
+                    f"says {_printable_cell(v)}")
+    return ""
+
+
+def _same_number(a, b) -> bool:
+    try:
+        return float(a) == float(b)
+    except (TypeError, ValueError):
+        return False
+
+
+def _printable_cell(v) -> str:
+    """A summary cell for a message: printable, at most 60 characters."""
+    t = sweep_mod.printable(_cell(v))
+    return repr(t if len(t) <= 60 else t[:57] + "...")
 
 
 def _read_csv(p: Path) -> list[dict]:
@@ -689,10 +727,14 @@ def results_lock(out: Path):
     The lock is an ``flock`` on ``out/.lock``, which records the holder's pid, host and start
     time; the kernel drops it when the holder exits, however it exits, so a lock left by a dead
     process is simply taken over.  Raises StoreError naming the holder if another process holds
-    it, or naming ``--out`` if the directory cannot be created."""
+    it, or naming ``--out`` if the directory cannot be created.  A run refused before it
+    wrote a manifest (a directory that is not a results directory, ``--resume`` with nothing to
+    resume) leaves no ``.lock``, nor the directory, where it created them."""
+    made_dir = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
         inside(out, LOCK)
+        made_lock = not (out / LOCK).exists()
         fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
     except OSError as err:
         raise StoreError(f"--out {out}: cannot create the results directory: "
@@ -706,6 +748,20 @@ def results_lock(out: Path):
                              f"wait for it to finish or choose another --out") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"pid {os.getpid()} on {platform.node()} since {_now()}\n".encode(), 0)
-        yield out
+        try:
+            yield out
+        except BaseException:
+            if made_lock and not (out / MANIFEST).exists():
+                _remove_unused(out, made_dir)
+            raise
     finally:
         os.close(fd)
+
+
+def _remove_unused(out: Path, made_dir: bool) -> None:
+    """Remove the ``.lock`` (still held) of a refused run, and ``out`` if this run made it and
+    it is empty."""
+    with contextlib.suppress(OSError):
+        (out / LOCK).unlink()
+        if made_dir:
+            out.rmdir()

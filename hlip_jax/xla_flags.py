@@ -19,7 +19,8 @@ none is left for those tasks and the process hangs, so the pool is given 2N thre
 (``PJRT_NPROC``; jaxlib 0.11 no longer splits the batch).
 
 Each setting is added only where the user's environment does not already choose it
-(``XLA_FLAGS`` naming the flag, ``PJRT_NPROC`` or ``NPROC`` set).
+(``XLA_FLAGS`` naming the flag, ``PJRT_NPROC`` or ``NPROC`` set to a count in ASCII digits:
+a value such as ``²`` counts as unset).
 """
 
 from __future__ import annotations
@@ -56,10 +57,16 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+def _is_count(text: str) -> bool:
+    """Whether ``text`` is a count in ASCII digits (``int`` refuses '²', which ``isdigit``
+    accepts)."""
+    return text.isascii() and text.isdigit()
+
+
 def cpu_pool_threads(environ: MutableMapping[str, str] = os.environ) -> int:
     """Threads of XLA's CPU thread pool as ``environ`` sizes it (:data:`POOL_VARS`, else one
     per usable core)."""
-    return next((int(environ[v]) for v in POOL_VARS if environ.get(v, "").isdigit()),
+    return next((int(environ[v]) for v in POOL_VARS if _is_count(environ.get(v, ""))),
                 usable_cores())
 
 
@@ -67,7 +74,7 @@ def cpu_devices(flags: str) -> int:
     """The CPU devices ``flags`` ask for (1 where they do not set :data:`DEVICES_FLAG`)."""
     for f in flags.split():
         name, _, value = f.partition("=")
-        if name == DEVICES_FLAG and value.strip().isdigit():
+        if name == DEVICES_FLAG and _is_count(value.strip()):
             return max(1, int(value))
     return 1
 
@@ -82,5 +89,5 @@ def apply(environ: MutableMapping[str, str] = os.environ, cores: int | None = No
         flags = with_flag(flags, DEVICES_FLAG, str(cores))
     environ["XLA_FLAGS"] = flags
     devices = cpu_devices(flags)
-    if devices > 1 and not any(v in environ for v in POOL_VARS):
+    if devices > 1 and not any(_is_count(environ.get(v, "")) for v in POOL_VARS):
         environ[POOL_VARS[0]] = str(2 * max(devices, cores))

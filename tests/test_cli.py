@@ -963,3 +963,67 @@ def test_run_refuses_a_huge_grid_before_building_it_and_a_dangling_out(tmp_path,
     assert main(["run", str(small), "--out", str(tmp_path / "dangling")]) == 2
     assert "a symbolic link to a missing path" in capsys.readouterr().err
     assert not (tmp_path / "nowhere").exists()
+
+
+def test_a_summary_with_swapped_or_edited_scenario_cells_is_refused(tmp_path, tiny_sweep, capsys,
+                                                                    fake_loop):
+    """summary.csv with two rows' names swapped (same row count) was reported as if right, each
+    row's numbers under the other scenario's name: exit 2 naming the line and the column; the
+    report rewrites it once it is deleted."""
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    rows = list(csv.reader((out / "summary.csv").open(newline="")))
+    k = rows[0].index("name")
+    rows[1][k], rows[2][k] = rows[2][k], rows[1][k]
+    with (out / "summary.csv").open("w", newline="") as fh:
+        csv.writer(fh, lineterminator="\n").writerows(rows)
+    code, _, err = cli(capsys, "report", out)
+    line = _one_line_error(code, err)
+    assert "summary.csv: line 2: column 'name' of scenario 0" in line and "manifest says" in line
+    assert not (out / "report.md").exists()
+    (out / "summary.csv").unlink()
+    code, _, err = cli(capsys, "report", out)
+    assert code == 0, err
+
+
+def test_non_ascii_digits_are_not_indices(tmp_path, tiny_sweep, capsys, fake_loop):
+    """'²' passes str.isdigit but not int(): `ticks DIR ²` and a results file ticks/²².json
+    were tracebacks; now the scenario is refused in one line and the stray file is skipped."""
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    code, _, err = cli(capsys, "ticks", out, "²")
+    assert "SCENARIO" in _one_line_error(code, err)
+    (out / "ticks").mkdir()
+    (out / "ticks" / "²².json").write_text("{}")
+    code, _, err = cli(capsys, "report", out)
+    assert code == 0, err
+
+
+def test_an_interrupted_report_does_not_speak_of_chunks(tmp_path, tiny_sweep, capsys, fake_loop,
+                                                        monkeypatch):
+    """Ctrl-C during `report` said 'finished chunks are kept: rerun with --resume' (run's
+    advice); it now says to run the report again (exit 130)."""
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    from hlip_jax import report
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(report, "write_report", interrupted)
+    code, _, err = cli(capsys, "report", out)
+    assert code == 130 and "run `hlip-sweep report` again" in err and "--resume" not in err
+
+
+def test_a_refused_out_is_left_as_it_was(tmp_path, tiny_sweep, capsys, fake_loop):
+    """`run --out DIR` refused because DIR is not a results directory (a user's folder, the
+    sweeps folder, `/`) left a `.lock` file in it; `--resume` into a missing directory left
+    that directory behind. Both are now left exactly as they were."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", mine, "--quiet")
+    assert "not a results directory" in _one_line_error(code, err)
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "new", "--resume", "--quiet")
+    assert "--resume" in _one_line_error(code, err)
+    assert not (tmp_path / "new").exists()

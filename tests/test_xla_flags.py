@@ -49,3 +49,14 @@ def test_the_cli_sets_it_before_running(monkeypatch, capsys):
     assert cli.main(["list"]) == 0
     flags = os.environ["XLA_FLAGS"].split()
     assert f"{xla_flags.FLAG}=false" in flags and f"{xla_flags.FLAG}=true" not in flags
+
+
+def test_a_pool_size_that_is_not_an_ascii_count_counts_as_unset():
+    """NPROC='²' (str.isdigit, but int() refuses it) kept hlip-sweep from sizing the pool and
+    the run stopped in a traceback: it now counts as unset, and '²' as a device count is
+    ignored as well."""
+    env = {"NPROC": "²"}
+    xla_flags.apply(env, cores=2)
+    assert env["PJRT_NPROC"] == "4"
+    assert xla_flags.cpu_pool_threads({"NPROC": "²"}) == xla_flags.usable_cores()
+    assert xla_flags.cpu_devices(f"{xla_flags.DEVICES_FLAG}=²") == 1
