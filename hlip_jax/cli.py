@@ -1021,6 +1021,8 @@ def main(argv=None) -> int:
         return _fail(str(err), EXIT_USAGE)
     except RecursionError:
         return _fail("input nested too deeply to process (recursion limit)", EXIT_USAGE)
+    except xla_flags.PoolTooSmall as err:
+        return _fail(str(err), EXIT_USAGE)
     except BrokenPipeError:     # the reader of stdout went away (`hlip-sweep list | head`)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_OK

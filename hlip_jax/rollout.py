@@ -559,7 +559,7 @@ def _check_cpu_pool(mesh: jax.sharding.Mesh) -> None:
     pool = xla_flags.cpu_pool_threads()
     here = sum(d.process_index == jax.process_index() for d in mesh.devices.flat)
     if here >= pool:
-        raise RuntimeError(
+        raise xla_flags.PoolTooSmall(
             f"the batch is split over {here} CPU devices of this process, but XLA's CPU thread "
             f"pool has {pool} threads: jaxlib {jax.lib.__version__} can deadlock unless it has "
             f"more (set PJRT_NPROC={2 * here} before JAX starts, as hlip-sweep does)")

@@ -57,6 +57,11 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+class PoolTooSmall(RuntimeError):
+    """A batch split over at least as many CPU devices as XLA's CPU thread pool has threads
+    (the user's own ``PJRT_NPROC``/``NPROC``): jaxlib < 0.11 would hang."""
+
+
 def _is_count(text: str) -> bool:
     """Whether ``text`` is a count in ASCII digits (``int`` refuses '²', which ``isdigit``
     accepts)."""

@@ -60,3 +60,14 @@ def test_a_pool_size_that_is_not_an_ascii_count_counts_as_unset():
     assert env["PJRT_NPROC"] == "4"
     assert xla_flags.cpu_pool_threads({"NPROC": "²"}) == xla_flags.usable_cores()
     assert xla_flags.cpu_devices(f"{xla_flags.DEVICES_FLAG}=²") == 1
+
+
+def test_a_user_pool_too_small_for_the_devices_is_one_line(monkeypatch, capsys):
+    """NPROC=2 set by the user on a 2-core machine (2 CPU devices): the guard against jaxlib
+    0.10's hang stopped `run` in a traceback; it is now one line, exit 2."""
+    def refuse(args):
+        raise xla_flags.PoolTooSmall("the batch is split over 2 CPU devices ... PJRT_NPROC=4")
+    monkeypatch.setattr(cli, "cmd_list", refuse)
+    assert cli.main(["list"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "PJRT_NPROC=4" in err and "Traceback" not in err
