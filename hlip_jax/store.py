@@ -191,6 +191,21 @@ def read_manifest(out_dir) -> dict:
 MANIFEST_MAX_BYTES = 2_000_000_000
 
 
+#: the keys of a manifest's scenario config that the summary and the report read, and their types
+_CONFIG_KEYS = {"name": str, "plant": str, "seed": int, "swept": dict, "path": dict}
+
+
+def _config_problem(c: dict) -> str | None:
+    """What makes one scenario config of a manifest unreadable, or None."""
+    for key, kind in _CONFIG_KEYS.items():
+        if not isinstance(c.get(key), kind):
+            what = {str: "a string", int: "an integer", dict: "a table"}[kind]
+            return f"{key!r} is missing or not {what}"
+    if "shape" not in c["path"]:
+        return "'path' has no 'shape'"
+    return None
+
+
 def _manifest_problem(man) -> str | None:
     """What makes a parsed manifest unusable, or None: not an object, or ``configs``,
     ``batch``, ``n_scenarios`` missing or inconsistent."""
@@ -204,6 +219,10 @@ def _manifest_problem(man) -> str | None:
             return f"{key!r} is {v!r}; expected an integer >= 1"
     if n != len(configs):
         return f"'n_scenarios' is {n} but {len(configs)} configs are listed"
+    for i, c in enumerate(configs):
+        bad = _config_problem(c)
+        if bad:
+            return f"configs[{i}]: {bad}"
     return None
 
 

@@ -881,6 +881,11 @@ def test_out_that_is_not_a_results_directory_and_resume_without_a_run(tmp_path, 
     (b'{"configs": [{}, {}], "n_scenarios": 2}', "'batch'"),
     (b'{"configs": [{}], "batch": 1, "n_scenarios": 10}', "n_scenarios"),
     (b"\xff\xfe not utf-8", "unreadable manifest"),
+    # a scenario config without the keys the summary reads was a KeyError traceback
+    (b'{"configs": [{"name": "a", "plant": "hlip", "seed": 1, "path": {"shape": "line"}}], '
+     b'"batch": 1, "n_scenarios": 1}', "configs[0]: 'swept' is missing or not a table"),
+    (b'{"configs": [{"name": 7, "plant": "hlip", "seed": 1, "swept": {}, '
+     b'"path": {"shape": "line"}}], "batch": 1, "n_scenarios": 1}', "configs[0]: 'name'"),
 ])
 def test_a_damaged_manifest_is_one_line(text, frag, tmp_path, tiny_sweep, capsys, fake_loop):
     out = tmp_path / "o"
