@@ -15,8 +15,8 @@ scenario's valid pre-impact samples k, i.e. the steps before any failure.
   :func:`hlip_jax.invariant.placement_errors`); ``place_err_along`` [m]: its mean along the path
   heading (a systematic over- (> 0) or under-step).  0 on the H-LIP plant without step noise.
 * ``cov_{x,y}_inner`` / ``cov_{x,y}_outer``: in-sample coverage bracket of the kept errors
-  (the analysis pipeline's run, :func:`hlip_jax.analysis.runs.run_errors`: after the default
-  warm-up :data:`hlip_jax.analysis.masks.WARMUP`, outside push windows) in the mRPI set E of
+  (the analysis pipeline's run, :func:`hlip_jax.analysis.runs.run_errors`: after the sweep's
+  warm-up, default :data:`hlip_jax.analysis.masks.WARMUP`, outside push windows) in the mRPI set E of
   ``e⁺ = (A + BK) e + d`` (the ``box`` estimator) with W the box of every disturbance the run
   met while walking outside push windows, d = w + B δu (the S2S disturbance plus the
   foot-placement error; the warm-up's too, since they drive the kept errors): the errors obey
@@ -97,11 +97,11 @@ def _box(A_cl, run, p: int, steps: np.ndarray):
     return estimators.fit("box", A_cl, [d], [np.zeros((0, d.shape[-1]))], [False], 0.5)
 
 
-def _coverage_metrics(log: dict, s: int, pushes) -> dict:
+def _coverage_metrics(log: dict, s: int, pushes, warmup: int) -> dict:
     """Per-plane in-sample and time-split coverage of the kept errors (module doc)."""
     out = {k: math.nan for plane in "xy" for k in (
         f"cov_{plane}_inner", f"cov_{plane}_outer", f"cov_{plane}_heldout", f"e_size_{plane}")}
-    Acl, _, run = runs.run_errors(log, s, pushes, masks.WARMUP)
+    Acl, _, run = runs.run_errors(log, s, pushes, warmup)
     m = run.masks
     walked = m.alive & ~m.push_window
     early, late = splits.time_halves(m.kept)
@@ -141,9 +141,12 @@ def push_recovery(d_path: np.ndarray, t: np.ndarray, t_push: float, failed: bool
     return peak, float(out[-1] + 1)
 
 
-def scenario_metrics(log: dict, s: int, with_coverage: bool = True, pushes=()) -> dict:
+def scenario_metrics(log: dict, s: int, with_coverage: bool = True, pushes=(),
+                     warmup: int = masks.WARMUP) -> dict:
     """Summary metrics of scenario ``s`` of a log dict (see the module docstring); ``pushes``:
-    the scenario's acting pushes as (start [s], duration [s]) (:func:`push_windows`)."""
+    the scenario's acting pushes as (start [s], duration [s]) (:func:`push_windows`);
+    ``warmup``: the steps the coverage metrics leave out at the start (the sweep's
+    ``[analysis] warmup``)."""
     push_time = min(t for t, _ in pushes) if len(pushes) else None
     mask = steplog.alive(log["valid"][s])       # steps before any failure
     n = int(mask.sum())
@@ -183,7 +186,7 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True, pushes=()) -
         for j, comp in enumerate("cpv"):
             m[f"emax_{plane}_{comp}"] = float(np.max(e[:, p, j]))
     if with_coverage:
-        m.update(_coverage_metrics(log, s, pushes))
+        m.update(_coverage_metrics(log, s, pushes, warmup))
     return m
 
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from hlip_jax import impl, metrics, progress, store
 from hlip_jax import workers as workers_mod
+from hlip_jax.analysis import masks
 from hlip_jax.analysis import settings as analysis_settings
 from hlip_jax import sweep as sweep_mod
 
@@ -271,7 +272,7 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
     ran = skipped = 0
     try:
         ran, skipped, done = _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks,
-                                         with_coverage, good, chash)
+                                         with_coverage, good, chash, sw.analysis.warmup)
     except BaseException:
         # interrupted or failed: finished chunks stay; the manifest says the run is incomplete
         man.update(status="incomplete", end_time=store._now(),
@@ -365,9 +366,10 @@ def _x64() -> bool:
 
 
 def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, good,
-                run_id: str):
+                run_id: str, warmup: int):
     """Simulate and store every chunk not in ``good`` (verified stored chunk indices, which
-    grows as chunks are written); returns (chunks run, chunks skipped, scenarios done)."""
+    grows as chunks are written); returns (chunks run, chunks skipped, scenarios done).
+    ``warmup``: the sweep's ``[analysis]`` warm-up, for the summary's coverage metrics."""
     ran = skipped = 0
     for i, (a, b) in enumerate(ranges):
         p = store.chunk_path(out, i)
@@ -391,7 +393,7 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
         arrays["index"] = np.arange(a, b, dtype=np.int64)
         arrays[store.RUN_ID] = np.full(b - a, run_id)
         mets = chunk_metrics(arrays, [metrics.push_windows(c) for c in chunk_cfgs[:b - a]],
-                             with_coverage)
+                             with_coverage, warmup=warmup)
         for k in metrics.SUMMARY_METRICS:
             arrays[f"metric.{k}"] = np.asarray([m[k] for m in mets], np.float64)
         store.save_npz_atomic(p, arrays)
@@ -413,17 +415,18 @@ def metric_workers(n: int, cpus: int | None = None) -> int:
     return workers_mod.count(n, METRICS_PER_WORKER, cpus)
 
 
-def metrics_block(arrays: dict, pushes: list, with_coverage: bool) -> list[dict]:
+def metrics_block(arrays: dict, pushes: list, with_coverage: bool,
+                  warmup: int = masks.WARMUP) -> list[dict]:
     """:func:`metrics.scenario_metrics` of every scenario of ``arrays`` (leading axis: the
     scenarios, one list of push windows each, :func:`metrics.push_windows`), on the host
     CPU."""
     with on_host():
-        return [metrics.scenario_metrics(arrays, s, with_coverage, w)
+        return [metrics.scenario_metrics(arrays, s, with_coverage, w, warmup)
                 for s, w in enumerate(pushes)]
 
 
 def chunk_metrics(arrays: dict, pushes: list, with_coverage: bool,
-                  workers: int | None = None) -> list[dict]:
+                  workers: int | None = None, warmup: int = masks.WARMUP) -> list[dict]:
     """Summary metrics of every scenario of a stored chunk, in scenario order.
 
     The coverage metrics cost about 0.5 s per Cassie scenario (an mRPI set of tens of terms per
@@ -434,7 +437,7 @@ def chunk_metrics(arrays: dict, pushes: list, with_coverage: bool,
     n = len(pushes)
     workers = metric_workers(n) if workers is None else min(workers, n)
     edges = np.linspace(0, n, max(workers, 1) + 1).astype(int)
-    blocks = [({k: v[a:b] for k, v in arrays.items()}, pushes[a:b], with_coverage)
+    blocks = [({k: v[a:b] for k, v in arrays.items()}, pushes[a:b], with_coverage, warmup)
               for a, b in zip(edges[:-1], edges[1:])]
     parts = workers_mod.starmap(metrics_block, blocks, workers)
     return [m for part in parts for m in part]

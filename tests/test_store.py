@@ -539,3 +539,18 @@ def test_numpy_numbers_are_written_as_plain_numbers(tmp_path):
     store.write_coverage_rows(tmp_path, [row])
     text = (tmp_path / store.COVERAGE).read_text()
     assert "np." not in text and repr(0.1 + 0.2) in text and ",true" in text
+
+
+def test_summary_coverage_follows_the_sweeps_warmup(tmp_path):
+    """The summary's per-scenario coverage leaves out the sweep's ``[analysis] warmup`` steps:
+    a warm-up of 1000 steps (more than the runs have) leaves no kept error, so its coverage
+    columns are NaN, where the default warm-up gives numbers (for the runs that walked)."""
+    sw = _tiny()
+    long = sweep.parse_sweep(TINY + "\n[analysis]\nwarmup = 1000\n")
+    assert long.analysis.warmup == 1000
+    runner.run_sweep(sw, tmp_path / "a", progress=False, simulate=fake_simulate)
+    runner.run_sweep(long, tmp_path / "b", progress=False, simulate=fake_simulate)
+    a, b = store.read_summary(tmp_path / "a"), store.read_summary(tmp_path / "b")
+    walked = [r for r in a if r["status"] == "ok"]
+    assert walked and all(0.0 <= float(r["cov_x_outer"]) <= 1.0 for r in walked)
+    assert all(math.isnan(float(r["cov_x_outer"])) for r in b)
