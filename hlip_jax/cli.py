@@ -215,13 +215,20 @@ def _ticks_parser(sub) -> None:
                         "DIR/ticks/INDEX.npz and INDEX.png (output errors, torques, contact "
                         "forces, CLF-QP status, phase, and the COM-height acceleration the "
                         "CLF-QP's model predicts beside the measured one).")
-    tk.add_argument("dir", metavar="DIR")
-    tk.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
-    tk.add_argument("--alone", action="store_true",
-                    help="replay the scenario as a batch of one instead of within its chunk "
-                    "(every robot of a chunk logs its ticks, so a large GPU chunk needs "
-                    "memory; a float32 run at the margin may end otherwise alone)")
+    _stored_scenario_arguments(tk, "(every robot of a chunk logs its ticks, so a large GPU "
+                               "chunk needs memory; a float32 run at the margin may end "
+                               "otherwise alone)")
     _cache_options(tk)
+
+
+def _stored_scenario_arguments(parser, alone_note: str) -> None:
+    """DIR SCENARIO [--alone]: one stored scenario, replayed within its chunk or alone
+    (``ticks``, ``render``; :func:`_stored_scenario`)."""
+    parser.add_argument("dir", metavar="DIR")
+    parser.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
+    parser.add_argument("--alone", action="store_true",
+                        help="replay the scenario as a batch of one instead of within its "
+                        "chunk " + alone_note)
 
 
 #: the bench's variant flags: (CassieConfig field, metavar, what is timed, a note on the values)
@@ -492,9 +499,7 @@ def _init_distributed(jax) -> None:
 
 def cmd_report(args) -> int:
     from hlip_jax import report, store
-    d = Path(args.dir)
-    if not d.is_dir():
-        raise UserError(f"{d}: results directory not found")
+    d = _results_dir(args.dir)
     store.check_chunks(d)           # a truncated or altered chunk is named before any figure
     from hlip_jax import runner
     with runner.on_host():
@@ -540,9 +545,7 @@ def _coverage_settings(d: Path, args):
 
 def cmd_coverage(args) -> int:
     from hlip_jax import store
-    d = Path(args.dir)
-    if not d.is_dir():
-        raise UserError(f"{d}: results directory not found")
+    d = _results_dir(args.dir)
     settings = _coverage_settings(d, args)
     store.check_chunks(d)
     from hlip_jax import runner
@@ -593,9 +596,7 @@ def cmd_s2s(args) -> int:
     import numpy as np
 
     from hlip_jax import s2s_fit, store
-    d = Path(args.dir)
-    if not d.is_dir():
-        raise UserError(f"{d}: results directory not found")
+    d = _results_dir(args.dir)
     if args.skip < 0:
         raise UserError(f"--skip: expected an integer >= 0, got {args.skip}")
     chosen = _chosen_scenarios(d, args.scenarios)
@@ -617,16 +618,14 @@ def cmd_s2s(args) -> int:
 
 def cmd_identify(args) -> int:
     from hlip_jax import s2s_model, store
-    d, out = Path(args.dir), Path(args.out)
-    if not d.is_dir():
-        raise UserError(f"{d}: results directory not found")
+    d, out = _results_dir(args.dir), Path(args.out)
     if args.skip < 0:
         raise UserError(f"--skip: expected an integer >= 0, got {args.skip}")
     if out.suffix != ".npz" or out.exists():
         raise UserError(f"-o: {out}: allowed: a new file ending in .npz (nothing is overwritten)")
     chosen = _chosen_scenarios(d, args.scenarios)
     test = [] if args.test is None else _chosen_scenarios(d, args.test)
-    if set(test) & set(chosen) and args.test is not None:
+    if set(test) & set(chosen):
         test = [i for i in test if i not in set(chosen)]
         if not test:
             raise UserError("--test: every matching scenario is also fitted on; allowed: "
@@ -685,9 +684,7 @@ def cmd_whull(args) -> int:
     import csv
 
     from hlip_jax import robust, store
-    d, out = Path(args.dir), Path(args.out)
-    if not d.is_dir():
-        raise UserError(f"{d}: results directory not found")
+    d, out = _results_dir(args.dir), Path(args.out)
     if out.exists():
         raise UserError(f"--out: {out} exists; allowed: a new file (nothing is overwritten)")
     chosen = _chosen_scenarios(d, args.scenarios)
@@ -720,9 +717,7 @@ def cmd_wbox(args) -> int:
 
     from hlip_jax import robust, store
     from hlip_jax.analysis import estimators
-    d = Path(args.dir)
-    if not d.is_dir():
-        raise UserError(f"{d}: results directory not found")
+    d = _results_dir(args.dir)
     if args.method not in estimators.METHODS:
         raise UserError(f"--method: {args.method!r}; allowed: {', '.join(estimators.METHODS)}")
     try:
@@ -746,13 +741,9 @@ def cmd_wbox(args) -> int:
 def cmd_ticks(args) -> int:
     import numpy as np
 
-    from hlip_jax import store, tick_report
+    from hlip_jax import tick_report
     _use_cache(args)
-    d = Path(args.dir)
-    if not d.is_dir():
-        raise UserError(f"{d}: results directory not found")
-    man = store.read_manifest(d)
-    index = _scenario_index(d, man, args.scenario)
+    d, man, index = _stored_scenario(args)
     try:
         rep = tick_report.replay(d, index, alone=args.alone)
     except ValueError as err:
@@ -765,6 +756,23 @@ def cmd_ticks(args) -> int:
         print(f"COM height acceleration, mean over {phase.upper()} ticks: measured {meas:+.3f}, "
               f"CLF-QP model {model:+.3f} m/s²")
     return EXIT_OK
+
+
+def _results_dir(text: str) -> Path:
+    """``text`` as a results directory; UserError when no such directory exists."""
+    d = Path(text)
+    if not d.is_dir():
+        raise UserError(f"{d}: results directory not found")
+    return d
+
+
+def _stored_scenario(args) -> tuple[Path, dict, int]:
+    """(results directory, its manifest, the scenario's index) of ``ticks`` and ``render``'s
+    DIR SCENARIO arguments."""
+    from hlip_jax import store
+    d = _results_dir(args.dir)
+    man = store.read_manifest(d)
+    return d, man, _scenario_index(d, man, args.scenario)
 
 
 def _scenario_index(d: Path, man: dict, text: str) -> int:
@@ -807,8 +815,7 @@ def _render_parser(sub) -> None:
                         "time; write FILE: an .mp4 video, a .gif animation or a .png snapshot "
                         "strip (one frame per simulated second).  Nothing else is written; "
                         "needs pip install 'hlip_jax[render]'.")
-    rd.add_argument("dir", metavar="DIR")
-    rd.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
+    _stored_scenario_arguments(rd, "(as `ticks --alone`)")
     rd.add_argument("-o", "--output", metavar="FILE",
                     help="the file to write: .mp4, .gif or .png (default "
                     "DIR/videos/INDEX_NAME.mp4)")
@@ -826,9 +833,6 @@ def _render_parser(sub) -> None:
                     help="start at this plant time [s] (default: the run's start)")
     rd.add_argument("--t1", type=_finite_float, metavar="S",
                     help="end at this plant time [s] (default: the run's end)")
-    rd.add_argument("--alone", action="store_true",
-                    help="replay the scenario as a batch of one instead of within its chunk "
-                    "(as `ticks --alone`)")
     _cache_options(rd)
 
 
@@ -872,14 +876,10 @@ def _render_output(d: Path, default: Path, given: str | None) -> Path:
 def cmd_render(args) -> int:
     import time
 
-    from hlip_jax import rollout, store, sweep
+    from hlip_jax import rollout, sweep
     from hlip_jax.render import clip, files, motion
     _use_cache(args)
-    d = Path(args.dir)
-    if not d.is_dir():
-        raise UserError(f"{d}: results directory not found")
-    man = store.read_manifest(d)
-    index = _scenario_index(d, man, args.scenario)
+    d, man, index = _stored_scenario(args)
     cfg = sweep.config_from_dict(man["configs"][index])
     out = _render_output(d, files.video(d, index, cfg.name), args.output)
     strip = out.suffix.lower() == ".png"

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import warnings
 from pathlib import Path
 from types import SimpleNamespace
@@ -290,28 +291,10 @@ def test_run_render_draws_videos_and_strips_for_the_report(tmp_path, monkeypatch
 
 # --- the real replay ---
 
-
-# two robots in one chunk, 1.2 s each, the first pushed (tests/test_tick_report.py's chunk,
-# whose replay that test finds bit for bit)
-CHUNK = """
-name = "pair"
-[base]
-plant = "cassie"
-duration = 1.2
-[base.path]
-peak_speed = 0.3
-[[paths]]
-shape = "line"
-length = 2.0
-[[paths.overrides.disturbance.pushes]]
-time = 0.5
-force = 60.0
-direction = 90.0
-[[paths]]
-name = "quiet"
-shape = "line"
-length = 2.0
-"""
+# two robots in one chunk, 1.2 s each, the first pushed: tests/test_tick_report.py's chunk,
+# whose replay that test finds bit for bit
+sys.path.insert(0, str(Path(__file__).parent))
+from test_tick_report import CHUNK  # noqa: E402
 
 
 @pytest.mark.slow
