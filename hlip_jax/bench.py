@@ -1,7 +1,9 @@
 """Closed-loop Cassie throughput (``hlip-sweep bench``): the MPC on the H-LIP driving the MJX
 Cassie plant through the stepping law and the CLF-QP, one compiled, vmapped call over a batch
 of straight-line scenarios (0, 0.2, 0.4, 0.6 m/s, the default gait), against physics-only MJX
-(zero torque, same model, same batch, same number of ticks) in the same process.
+(zero torque, same model, same batch, same number of ticks) in the same process: MJX-JAX
+always, and MJX's Warp implementation too when Warp physics is among the benchmarked ones
+(the engine such a sweep runs), each with its own ratio.
 
 Per batch size, device count, CLF-QP loop (``cassie.qp_loop``: the ADMM blocks in a while
 loop that stops when the batch has converged, or in a loop of static trip count that runs the
@@ -21,8 +23,9 @@ from typing import Callable, Sequence
 SPEEDS = (0.0, 0.2, 0.4, 0.6)
 
 HEADER = ("| batch | devices | CLF-QP loop, physics | steps | compile + first [s] | run [s] | robot-s / s | "
-          "physics steps/s (closed loop) | physics only, 1 device [steps/s] | ratio | walking at end | "
-          "peak memory / robot [MiB] |\n|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+          "physics steps/s (closed loop) | physics only, 1 device [steps/s] | ratio | "
+          "Warp physics only, 1 device [steps/s] | ratio to Warp | walking at end | "
+          "peak memory / robot [MiB] |\n|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
 
 
 def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: str = "while",
@@ -96,17 +99,23 @@ def admm_share(t_full: float, t_short: float, it_full: int, it_short: int) -> fl
     return (t_full - t_short) * it_full / (it_full - it_short) / t_full
 
 
-def _physics_only_rate(B: int, ticks: int, steps: int) -> float:
-    """Physics steps per second of B zero-torque robots over ``ticks`` control ticks (the
-    compiled call timed on its second run)."""
+def _physics_only_rate(B: int, ticks: int, steps: int, physics: str = "jax") -> float:
+    """Physics steps per second of B zero-torque robots over ``ticks`` control ticks stepped
+    by ``physics`` ("jax": MJX-JAX, "warp": MJX's Warp implementation), the compiled call
+    timed on its second run."""
     import jax
 
     from hlip_jax.plants.cassie import control, model
     from hlip_jax.plants.cassie import plant as cassie_plant
 
     cassie = cassie_plant.cassie()
+    mx = None
+    if physics == "warp":
+        from hlip_jax.plants.cassie import warp_physics
+        mx = warp_physics.base_model(cassie.mj_model)
     d = model.make_batch(cassie, B, jax.random.PRNGKey(0))
-    physics_only = jax.jit(jax.vmap(lambda d: control.zero_torque_rollout(cassie, d, ticks)))
+    physics_only = jax.jit(jax.vmap(
+        lambda d: control.zero_torque_rollout(cassie, d, ticks, mx, physics, B)))
     jax.block_until_ready(physics_only(d))
     t0 = time.perf_counter()
     jax.block_until_ready(physics_only(d))
@@ -190,9 +199,11 @@ def _variant(static, rho_start: str = "previous") -> str:
     return f"{_loop(static)} loop{solve}{rho}, {static.plant_settings.physics} physics"
 
 
-def _row(static, B: int, T: float, steps: int, prate: float, n_dev: int, t_first: float,
+def _row(static, B: int, T: float, steps: int, prates: dict, n_dev: int, t_first: float,
          t_run: float, status, peak) -> dict:
-    """One result row of the closed-loop benchmark (a run of ``_device_runs``)."""
+    """One result row of the closed-loop benchmark (a run of ``_device_runs``); ``prates``
+    {"jax": rate, "warp": rate or None} are the physics-only rates measured in this process
+    (MJX-JAX always, Warp where the benchmark runs Warp physics)."""
     import numpy as np
 
     from hlip_jax import steplog
@@ -204,7 +215,9 @@ def _row(static, B: int, T: float, steps: int, prate: float, n_dev: int, t_first
                 physics=static.plant_settings.physics, steps=static.n_steps,
                 compile_first_s=t_first, run_s=t_run,
                 robot_s_per_s=B * static.n_steps * T / t_run, physics_steps_per_s=rate,
-                physics_only_steps_per_s=prate, ratio=rate / prate,
+                physics_only_steps_per_s=prates["jax"], ratio=rate / prates["jax"],
+                physics_only_warp_steps_per_s=prates.get("warp"),
+                ratio_warp=None if prates.get("warp") is None else rate / prates["warp"],
                 walking=float(np.mean(status == steplog.STATUS_OK)),
                 peak_mib_per_robot=None if peak is None else peak / B / 2**20)
 
@@ -212,10 +225,13 @@ def _row(static, B: int, T: float, steps: int, prate: float, n_dev: int, t_first
 def _table_row(r: dict, variant: str) -> str:
     """The markdown row of :data:`HEADER` for result row ``r``."""
     mem = "–" if r["peak_mib_per_robot"] is None else f"{r['peak_mib_per_robot']:.2f}"
+    warp = ("– | –" if r["ratio_warp"] is None else
+            f"{r['physics_only_warp_steps_per_s']:,.0f} | {r['ratio_warp']:.2f}")
     return (f"| {r['batch']} | {r['devices']} | {variant} | {r['steps']} | "
             f"{r['compile_first_s']:.1f} | {r['run_s']:.2f} | {r['robot_s_per_s']:,.1f} | "
             f"{r['physics_steps_per_s']:,.0f} | {r['physics_only_steps_per_s']:,.0f} | "
-            f"{r['ratio']:.2f} | {r['walking']:.3f} | {mem} |")
+            f"{r['ratio']:.2f} | {warp} | "
+            f"{r['walking']:.3f} | {mem} |")
 
 
 def _variants(physics, qp_loops, qp_linsys, qp_kernels, qp_rho_start,
@@ -270,11 +286,13 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
         T = float(np.asarray(batch.t_ssp[0] + batch.t_dsp[0]))
         ticks = static.n_steps * int(round(T / control.CONTROL_DT))
         steps = ticks * control.SUBSTEPS
-        prate = _physics_only_rate(B, ticks, steps)        # first: a cut-off run keeps it
-        emit(f"batch {B}: physics only, 1 device: {prate:,.0f} physics steps/s")
+        prates = {ph: _physics_only_rate(B, ticks, steps, ph)   # first: a cut-off run keeps them
+                  for ph in ("jax", "warp") if ph == "jax" or ph in physics}
+        for ph, rate in prates.items():
+            emit(f"batch {B}: physics only ({ph}), 1 device: {rate:,.0f} physics steps/s")
         for rho, (b_q, st_q) in builds:
             for run in _device_runs(b_q, st_q, B, steps, devices, emit, _variant(st_q, rho)):
-                rows.append(dict(_row(st_q, B, T, steps, prate, *run), qp_rho_start=rho))
+                rows.append(dict(_row(st_q, B, T, steps, prates, *run), qp_rho_start=rho))
                 if on_row is not None:
                     on_row(rows)
                 emit(_table_row(rows[-1], _variant(st_q, rho)))

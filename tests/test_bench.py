@@ -61,10 +61,16 @@ def test_a_cut_off_bench_keeps_what_it_measured(monkeypatch, tmp_path):
         return [(1, 1.0, 2.0, np.zeros(B, int), None)]
 
     monkeypatch.setattr(bench, "_device_runs", device_runs)
-    monkeypatch.setattr(bench, "_physics_only_rate", lambda B, ticks, steps: 1000.0)
+    monkeypatch.setattr(bench, "_physics_only_rate",
+                        lambda B, ticks, steps, physics: {"jax": 1000.0, "warp": 500.0}[physics])
     monkeypatch.setattr(bench, "_peak_bytes", lambda devices: None)
     monkeypatch.setattr("hlip_jax.plants.cassie.warp_physics.require", lambda: None)
     assert cli.main(["bench", "--batch", "2", "--duration", "0.3", "--physics", "jax", "warp",
                      "--json", str(out)]) == 0
     assert seen == ["jax", "warp"]
-    assert [r["physics"] for r in json.loads(out.read_text())] == ["jax", "warp"]
+    rows = json.loads(out.read_text())
+    assert [r["physics"] for r in rows] == ["jax", "warp"]
+    # both denominators measured in the same process; the Warp one because Warp is benchmarked
+    for r in rows:
+        assert r["ratio"] == pytest.approx(r["physics_steps_per_s"] / 1000.0, rel=1e-12)
+        assert r["ratio_warp"] == pytest.approx(r["physics_steps_per_s"] / 500.0, rel=1e-12)

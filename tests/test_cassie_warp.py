@@ -63,11 +63,9 @@ def _stand_and_reference(ticks: int):
 
 
 def _warp_passive(c, d, ticks: int, robots: int):
-    zero_u, zero_f = jnp.zeros(c.index.nu, jnp.float32), jnp.zeros(3, jnp.float32)
-    mw = warp_physics.base_model(c.mj_model)
-    body = lambda d, _: (control.physics(c, d, zero_u, zero_f, mx=mw, backend="warp",
-                                         robots=robots), None)
-    return jax.lax.scan(body, d, None, length=ticks)[0]
+    # the benchmark's Warp physics-only reference (hlip-sweep bench's second denominator)
+    return control.zero_torque_rollout(c, d, ticks, warp_physics.base_model(c.mj_model),
+                                       "warp", robots)
 
 
 @pytest.mark.slow

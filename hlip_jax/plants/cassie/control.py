@@ -82,14 +82,17 @@ def physics(cassie: model.Cassie, d: mjx.Data, ctrl, force, mx=None, backend: st
     return jax.lax.fori_loop(0, SUBSTEPS, lambda _, d: mjx.step(mx, d), d, unroll=True)
 
 
-def zero_torque_rollout(cassie: model.Cassie, d: mjx.Data, n_ticks: int) -> mjx.Data:
+def zero_torque_rollout(cassie: model.Cassie, d: mjx.Data, n_ticks: int, mx=None,
+                        backend: str = "jax", robots: int = 1) -> mjx.Data:
     """``n_ticks`` control ticks of physics alone (zero motor torque, no push): the
-    physics-only reference the benchmarks compare the controlled loops against."""
+    physics-only reference the benchmarks compare the controlled loops against, stepped by
+    ``backend`` ("jax" or "warp" with ``mx`` the Warp model and ``robots`` the vmapped batch
+    size, as in :func:`physics`)."""
     ctrl = jnp.zeros(cassie.index.nu, d.qpos.dtype)
     force = jnp.zeros(3, d.qpos.dtype)
 
     def tick(d, _):
-        return physics(cassie, d, ctrl, force), None
+        return physics(cassie, d, ctrl, force, mx, backend, robots), None
 
     return jax.lax.scan(tick, d, None, length=n_ticks)[0]
 
