@@ -34,8 +34,8 @@ import numpy as np
 from hlip_jax import steplog
 # the set types and the mRPI construction live in hlip_jax.sets; re-exported for the analysis API
 from hlip_jax.sets import (MRPI, Box, Hull, TemplatePolytope, Zonotope,  # noqa: F401
-                           _f64, _hull_from_points, _hpoly_vertices, mrpi, schur_stable, truncated_sum,
-                           vertices, zonotope, zonotope_halfspaces)
+                           as_float64, convex_hull, mrpi, schur_stable, truncated_sum, vertices,
+                           zonotope, zonotope_halfspaces)
 
 # ---------------------------------------------------------------------------------------------
 # disturbances and W estimators
@@ -130,17 +130,24 @@ def placement_errors(u_exec, u_hlip, e, K):
       e: (..., n_steps, 2, 3) errors x_robot − x_HLIP per plane [c, p, v].
       K: stepping gain (n,) or per plane (2, n); n = 2 acts on [p, v].
     Returns (..., n_steps, 2)."""
-    e = _f64(e)
-    K = _f64(K)
+    e = as_float64(e)
+    K = as_float64(K)
     n = K.shape[-1]
     Kp = np.broadcast_to(K, (2, n))
-    return _f64(u_exec) - _f64(u_hlip) - np.einsum("pj,...pj->...p", Kp, _states(e, n))
+    return as_float64(u_exec) - as_float64(u_hlip) - np.einsum("pj,...pj->...p", Kp, _states(e, n))
+
+
+#: the two planes of the per-plane error analysis, named per frame: the path's heading frame
+#: (plane 0 sagittal along the heading θ, plane 1 lateral to its left; :func:`heading_frame`)
+#: or the world's axes (plane 0 world x, plane 1 world y).  coverage.csv's ``plane`` column and
+#: the tube's W frame (:mod:`hlip_jax.robust`) use these names.
+PLANES = {"heading": ("sagittal", "lateral"), "world": ("world x", "world y")}
 
 
 def to_heading(v, heading):
     """Per-plane vectors v (..., 2, n) [world x, y] → (sagittal, lateral) of the frame turned by
     ``heading`` θ (...) [rad]: v'_0 = cos θ v_x + sin θ v_y, v'_1 = −sin θ v_x + cos θ v_y."""
-    return steplog.to_heading_frame(_f64(v), _f64(heading))
+    return steplog.to_heading_frame(as_float64(v), as_float64(heading))
 
 
 def closed_loop(A, B, K, anchor=None):
@@ -161,8 +168,8 @@ def closed_loop(A, B, K, anchor=None):
     Ap, Bp = _plane_mats(A, B)
     Ap, Bp = np.asarray(Ap, np.float64), np.asarray(Bp, np.float64)
     n = Ap.shape[-1]
-    Kp = np.broadcast_to(_f64(K), (2, n))
-    m = np.zeros(n) if anchor is None else _f64(anchor).reshape(n)
+    Kp = np.broadcast_to(as_float64(K), (2, n))
+    m = np.zeros(n) if anchor is None else as_float64(anchor).reshape(n)
     if np.all(m == 1.0):
         return np.zeros((2, n, n)), 0.0
     return Ap * (1.0 - m)[None, None, :] + Bp[:, :, None] * Kp[:, None, :], 1.0
@@ -192,10 +199,10 @@ def heading_frame(e, d, heading, A_cl):
       A_cl: (n, n), or (2, n, n) with both planes equal (a different gain per plane does not
         commute with the rotation; ValueError).
     Returns (e', d') with the shapes of e and d; plane 0 sagittal, 1 lateral."""
-    e = _f64(e)
-    d = _f64(d)
-    th = _f64(heading)
-    Acl = _f64(A_cl)
+    e = as_float64(e)
+    d = as_float64(d)
+    th = as_float64(heading)
+    Acl = as_float64(A_cl)
     if Acl.ndim == 3:
         if Acl.shape[0] != 2 or not np.allclose(Acl[0], Acl[1], rtol=1e-12, atol=1e-12):
             raise ValueError("A_cl: the heading frame needs the same closed loop in both planes "
@@ -220,7 +227,7 @@ def estimate_w(samples, mask=None, method: str = "box", quantile: float = 0.99):
     method: "box" (per-axis min/max), "quantile" (per-axis [Q(1−q), Q(q)], q = ``quantile``
     in (0.5, 1]; q = 1 is the min/max box), or "hull" (convex hull, scipy Qhull).
     """
-    P = _f64(samples).reshape(-1, np.shape(samples)[-1])
+    P = as_float64(samples).reshape(-1, np.shape(samples)[-1])
     if mask is not None:
         P = P[np.asarray(mask, bool).reshape(-1)]
     if P.shape[0] == 0:
@@ -234,7 +241,7 @@ def estimate_w(samples, mask=None, method: str = "box", quantile: float = 0.99):
         hi = np.quantile(P, quantile, axis=0)
         return Box(jnp.asarray(lo), jnp.asarray(hi))
     if method == "hull":
-        return _hull_from_points(P)
+        return convex_hull(P)
     raise ValueError(f"method: one of 'box', 'quantile', 'hull' expected, got {method!r}")
 
 
@@ -319,10 +326,10 @@ def _joint(E_pair, e, mask, tol):
 def _checked_log(x_robot, e, holdout_fraction):
     """(x_robot, e) as float64 after :func:`analyse`'s shape and range checks (ValueError
     naming the argument)."""
-    x = _f64(x_robot)
+    x = as_float64(x_robot)
     if x.ndim < 4:
         raise ValueError(f"x_robot: shape (n_scenarios, ..., n_steps, 2, 3) expected, got {x.shape}")
-    e = _f64(e)
+    e = as_float64(e)
     if e.shape != x.shape:
         raise ValueError(f"e: shape {x.shape} (same as x_robot) expected, got {e.shape}")
     if not 0.0 <= holdout_fraction < 1.0:
@@ -360,7 +367,8 @@ def analyse(x_robot, u_exec, valid, e, A, B, K, W_estimator: str = "box",
     Ap, Bp = _plane_mats(A, B)
     Ap, Bp = np.asarray(Ap, np.float64), np.asarray(Bp, np.float64)
     n = Ap.shape[-1]
-    Kp = np.broadcast_to(_f64(K), (2, n)) if _f64(K).shape in ((n,), (2, n)) else None
+    K64 = as_float64(K)
+    Kp = np.broadcast_to(K64, (2, n)) if K64.shape in ((n,), (2, n)) else None
     if Kp is None:
         raise ValueError(f"K: shape ({n},) or (2, {n}) expected, got {np.shape(K)}")
     Acl, beta = closed_loop(Ap, Bp, Kp, anchor)

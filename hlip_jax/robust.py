@@ -57,9 +57,9 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import sets
+from hlip_jax import invariant, sets
 
-FRAMES = ("heading", "world")
+FRAMES = tuple(invariant.PLANES)    # "heading", "world": the frames of W and of the tube
 
 
 #: rows of the per-step tube table (steps 0..STEPS−2 exact, then the mRPI bound)
@@ -263,7 +263,6 @@ def w_from_coverage(rows, method: str = "box", groups=None):
     the groups used).  ValueError (naming what is allowed) when ``method`` has no rows, a group
     is unknown, the rows mix frames, a plane is missing, or W is on [p, v] (the tube needs the
     COM position: a gain with ``with_position``)."""
-    from hlip_jax.analysis import coverage     # the coverage.csv format (scipy: not at start-up)
     rows = [r for r in rows if r["w_method"] == method and r["level"] == "run"]
     if not rows:
         raise ValueError(f"method {method!r}: no coverage.csv rows of it")
@@ -273,7 +272,7 @@ def w_from_coverage(rows, method: str = "box", groups=None):
     if unknown:
         raise ValueError(f"group {unknown[0]!r} is not in coverage.csv; allowed: {', '.join(known)}")
     rows = [r for r in rows if str(r["group"]) in chosen]
-    frames = {f for f, names in coverage.PLANES.items() for r in rows if r["plane"] in names}
+    frames = {f for f, names in invariant.PLANES.items() for r in rows if r["plane"] in names}
     if len(frames) != 1:
         raise ValueError(f"the chosen groups' planes are in frames {sorted(frames)}; choose groups "
                          "of one frame (--group)")
@@ -286,8 +285,8 @@ def w_from_coverage(rows, method: str = "box", groups=None):
         lo, hi = (np.array(str(r[k]).split(), float) for k in ("w_lo", "w_hi"))
         if lo.shape != (3,) or not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ValueError(f"group {r['group']!r}, plane {r['plane']}: no finite W (too few samples)")
-        i = coverage.PLANES[frame].index(r["plane"])
+        i = invariant.PLANES[frame].index(r["plane"])
         w[i] = np.maximum(w[i], np.maximum(np.abs(lo), np.abs(hi)))
     if not np.all(np.isfinite(w)):
-        raise ValueError(f"a plane of {coverage.PLANES[frame]} has no rows")
+        raise ValueError(f"a plane of {invariant.PLANES[frame]} has no rows")
     return frame, w, chosen

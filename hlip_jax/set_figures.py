@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from hlip_jax.sets import _f64, vertices
+from hlip_jax.sets import as_float64, vertices
 
 
 STATE_LABELS = {3: ("c [m]", "p [m]", "v [m/s]"), 2: ("p [m]", "v [m/s]")}
 
 
 def _split_inside(E, samples, tol=1e-9):
-    P = _f64(samples).reshape(-1, E.dim)
+    P = as_float64(samples).reshape(-1, E.dim)
     inside = np.asarray(E.contains(P, tol))
     return P, inside
 

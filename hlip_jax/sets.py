@@ -24,7 +24,9 @@ Set types (all NamedTuples, hence pytrees; ``support`` and ``contains`` are jitt
   ``contains`` and ``volume`` are those of the outer set.
 
 Construction (the s/α choice, facet enumeration) runs eagerly in float64 numpy on concrete
-values; the per-point functions run in JAX.  The error system these sets serve is described in
+values (:func:`as_float64`); the per-point functions run in JAX.  Constructors with the
+H-representation filled in: :func:`zonotope`, :func:`convex_hull`; vertices of a set:
+:func:`vertices`, of any bounded {x : N x ≤ b}: :func:`halfspace_vertices`.  The error system these sets serve is described in
 :mod:`hlip_jax.invariant`; figures of them are in :mod:`hlip_jax.set_figures`.
 """
 
@@ -46,7 +48,10 @@ import numpy as np
 _CHUNK = 65536  # points per block in membership tests (bounds the (points × facets) temporary)
 
 
-def _f64(x) -> np.ndarray:
+def as_float64(x) -> np.ndarray:
+    """``x`` (numbers, nested lists, numpy or JAX arrays) as a float64 numpy array on the host,
+    the precision every construction of this module runs in (module doc); the values and their
+    units are unchanged."""
     return np.asarray(x, dtype=np.float64)
 
 
@@ -133,7 +138,7 @@ class Hull(NamedTuple):
         """Hull with only its extreme points as vertices and its facets filled in."""
         if self.normals is not None:
             return self
-        return _hull_from_points(_f64(self.vertices))
+        return convex_hull(self.vertices)
 
     def support(self, directions):
         """h(d) = max_k v_kᵀ d."""
@@ -147,7 +152,7 @@ class Hull(NamedTuple):
 
     def volume(self):
         """Lebesgue measure (scipy Qhull, eager; length in 1-D)."""
-        return _points_volume(_f64(self.vertices))
+        return _points_volume(as_float64(self.vertices))
 
 
 class TemplatePolytope(NamedTuple):
@@ -177,7 +182,7 @@ class TemplatePolytope(NamedTuple):
         return _padded_call(lambda x: _hpoly_contains(N, b, c, x, tol), jnp.asarray(points))
 
     def volume(self):
-        return _points_volume(_f64(self.vertices))
+        return _points_volume(as_float64(self.vertices))
 
 
 class MRPI(NamedTuple):
@@ -215,16 +220,17 @@ def _facets(S):
     H-representation {x : N x ≤ b}, or {x : |N (x − c)| ≤ h} when ``symmetric``."""
     S = S.outer if isinstance(S, MRPI) else S
     if isinstance(S, Box):
-        lo, hi = _f64(S.lo), _f64(S.hi)
+        lo, hi = as_float64(S.lo), as_float64(S.hi)
         return np.eye(lo.size), 0.5 * (hi - lo), 0.5 * (lo + hi), True
     if isinstance(S, Zonotope):
         z = S if S.normals is not None else zonotope_hrep(S)
-        return _f64(z.normals), _f64(z.offsets), _f64(z.center), True
+        return as_float64(z.normals), as_float64(z.offsets), as_float64(z.center), True
     if isinstance(S, Hull):
         h = S.canonical()
-        return _f64(h.normals), _f64(h.offsets), _f64(h.vertices).mean(axis=0), False
+        V = as_float64(h.vertices)
+        return as_float64(h.normals), as_float64(h.offsets), V.mean(axis=0), False
     if isinstance(S, TemplatePolytope):
-        return _f64(S.normals), _f64(S.offsets), _f64(S.center), False
+        return as_float64(S.normals), as_float64(S.offsets), as_float64(S.center), False
     raise TypeError(f"S: Box, Zonotope, Hull, TemplatePolytope or MRPI expected, got "
                     f"{type(S).__name__}")
 
@@ -244,7 +250,7 @@ def gauge(S, points) -> np.ndarray:
     returns (...,) float64 (an MRPI bracket is measured against its outer set).  c must lie in
     S's interior, which every set of this module has by construction."""
     N, b, c, sym = _facets(S)
-    x = _f64(points) - c
+    x = as_float64(points) - c
     flat = x.reshape(-1, x.shape[-1])
     scale = 1.0 / np.maximum(b if sym else b - N @ c, np.finfo(float).tiny)   # (F,)
     rows = max(1, _GAUGE_BLOCK // max(1, N.shape[0]))     # bounds the (points × facets) block
@@ -272,9 +278,9 @@ class Scaled(NamedTuple):
 
     def support(self, directions):
         """h(d) = dᵀc + s (h_S(d) − dᵀc)."""
-        D = _f64(directions)
+        D = as_float64(directions)
         dc = D @ center(self.base)
-        return dc + self.s * (_f64(self.base.support(D)) - dc)
+        return dc + self.s * (as_float64(self.base.support(D)) - dc)
 
     def contains(self, points, tol: float = 1e-9):
         """g_S(x) ≤ s (1 + tol) per point (:func:`gauge`)."""
@@ -433,7 +439,7 @@ def _zono_volume(z: Zonotope):
     |g_i × g_j| over i < j; n = 3 sums |(g_i × g_j) · g_k| over i < j < k row by row (O(m³)
     flops but O(m²) memory: 480 generators take ~0.2 s).  Larger n: the subset list.  Eager
     (float64 numpy), like every caller."""
-    G = _f64(z.generators)
+    G = as_float64(z.generators)
     m, n = G.shape
     if m < n:
         return np.float64(0.0)
@@ -493,7 +499,7 @@ def zonotope_normals(generators, parallel_rtol: float = 1e-12) -> np.ndarray:
     extra generators for normal finding only, so flat sets get both their in-plane facets and
     the pair of bounding planes.
     """
-    G = _f64(generators)
+    G = as_float64(generators)
     n = G.shape[1]
     gn = np.linalg.norm(G, axis=1)
     if G.shape[0]:
@@ -520,8 +526,8 @@ def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
     generators first and record its half-widths in ``prefix_offsets`` (two-pass membership).
     Extra normals never change the set: every row is a supporting halfspace of Z.
     """
-    c = _f64(z.center)
-    G = _f64(z.generators).reshape(-1, c.shape[0])
+    c = as_float64(z.center)
+    G = as_float64(z.generators).reshape(-1, c.shape[0])
     N, n0 = zonotope_normals(G), 0
     if 0 < n_prefix < G.shape[0]:
         N0 = zonotope_normals(G[:n_prefix])
@@ -561,7 +567,7 @@ def _small_matmul_t(N: np.ndarray, G: np.ndarray) -> np.ndarray:
 def zonotope_halfspaces(z: Zonotope):
     """Full H-representation (N (2F, n), b (2F,)) with {x : N x ≤ b} (both signs)."""
     z = z if z.normals is not None else zonotope_hrep(z)
-    N, h, c = _f64(z.normals), _f64(z.offsets), _f64(z.center)
+    N, h, c = as_float64(z.normals), as_float64(z.offsets), as_float64(z.center)
     N2 = np.concatenate([N, -N])
     return N2, N2 @ c + np.concatenate([h, h])
 
@@ -569,21 +575,32 @@ def zonotope_halfspaces(z: Zonotope):
 def zonotope(center, generators, n_prefix: int = 0) -> Zonotope:
     """Zonotope c + Gᵀβ, |β| ≤ 1, with facets; center (n,), generators (m, n);
     ``n_prefix``: see :func:`zonotope_hrep`."""
-    c = _f64(center)
+    c = as_float64(center)
     if c.ndim != 1 or not 1 <= c.shape[0] <= 3:
         raise ValueError(f"zonotope center: shape (n,) with n in 1..3 expected, got {c.shape}")
-    G = _f64(generators).reshape(-1, c.shape[0])
+    G = as_float64(generators).reshape(-1, c.shape[0])
     return zonotope_hrep(Zonotope(c, G), n_prefix)
 
 
 def box_to_zonotope(b: Box) -> Zonotope:
-    lo, hi = _f64(b.lo), _f64(b.hi)
+    lo, hi = as_float64(b.lo), as_float64(b.hi)
     return zonotope(0.5 * (lo + hi), np.diag(0.5 * (hi - lo)))
 
 
-def _hull_from_points(P: np.ndarray) -> Hull:
+def convex_hull(points) -> Hull:
+    """The convex hull conv{p_j} of ``points`` (k, n), in the points' own units (here the state
+    [c, p, v] in m, m, m/s), with its H-representation filled in (the same as
+    ``Hull(points).canonical()``):
+
+        conv{p_j} = {x : N x ≤ b},  N (F, n) unit outward facet normals, b (F,) offsets,
+
+    vertices = the extreme points among the p_j (scipy Qhull, eager, float64); duplicate facets
+    (equal (N_f, b_f) to 1e-10) appear once.  In 1-D the hull is the interval [min p, max p]
+    with N = [[1], [−1]], b = [max p, −min p].  ValueError when there is no point or the points
+    do not span the space (flat in n-D, or fewer than n + 1)."""
     from scipy.spatial import ConvexHull, QhullError
 
+    P = as_float64(points)
     if P.ndim != 2 or P.shape[0] == 0:
         raise ValueError(f"Hull points: shape (k, n) with k ≥ 1 expected, got {P.shape}")
     n = P.shape[1]
@@ -617,15 +634,22 @@ def _points_volume(P: np.ndarray) -> float:
         return 0.0
 
 
-def _hpoly_vertices(N: np.ndarray, b: np.ndarray, interior: np.ndarray) -> np.ndarray:
-    """Vertices of {x : N x ≤ b} (bounded, ``interior`` strictly inside)."""
+def halfspace_vertices(normals, offsets, interior) -> np.ndarray:
+    """Vertices (k, n) of the bounded polytope {x : N x ≤ b}, N = ``normals`` (F, n),
+    b = ``offsets`` (F,), in the units of x (state units: m, m, m/s for [c, p, v]).
+
+    ``interior`` (n,) is a point strictly inside (N x < b), e.g. a zonotope's centre.  In 1-D
+    the polytope is the interval [max_{N_f < 0} b_f / N_f, min_{N_f > 0} b_f / N_f]; in more
+    dimensions the vertices are the intersections of the facets (scipy's HalfspaceIntersection,
+    eager, float64; non-finite intersections dropped)."""
+    N, b = as_float64(normals), as_float64(offsets)
     if N.shape[1] == 1:
         up = b[N[:, 0] > 0] / N[N[:, 0] > 0, 0]
         dn = b[N[:, 0] < 0] / N[N[:, 0] < 0, 0]
         return np.array([[dn.max()], [up.min()]])
     from scipy.spatial import HalfspaceIntersection
 
-    hs = HalfspaceIntersection(np.concatenate([N, -b[:, None]], axis=1), interior)
+    hs = HalfspaceIntersection(np.concatenate([N, -b[:, None]], axis=1), as_float64(interior))
     V = hs.intersections
     return V[np.all(np.isfinite(V), axis=1)]
 
@@ -638,15 +662,15 @@ def vertices(S) -> np.ndarray:
     if isinstance(S, MRPI):
         S = S.outer
     if isinstance(S, Box):
-        lo, hi = _f64(S.lo), _f64(S.hi)
+        lo, hi = as_float64(S.lo), as_float64(S.hi)
         return np.array([np.where(m, hi, lo) for m in itertools.product([0, 1], repeat=len(lo))])
     if isinstance(S, Hull):
-        return _f64(S.canonical().vertices)
+        return as_float64(S.canonical().vertices)
     if isinstance(S, TemplatePolytope):
-        return _f64(S.vertices)
+        return as_float64(S.vertices)
     if isinstance(S, Zonotope):
         N, b = zonotope_halfspaces(S)
-        return _hpoly_vertices(N, b, _f64(S.center))
+        return halfspace_vertices(N, b, as_float64(S.center))
     raise TypeError(f"vertices: unsupported set type {type(S).__name__}")
 
 
@@ -679,11 +703,11 @@ def default_directions(n: int, count: Optional[int] = None) -> np.ndarray:
 def schur_stable(A_cl, margin: float = 1e-9) -> bool:
     """Whether every eigenvalue of ``A_cl`` lies inside the circle of radius 1 − ``margin``
     (the error system then has a bounded invariant set)."""
-    return bool(np.all(np.abs(np.linalg.eigvals(_f64(A_cl))) < 1 - margin))
+    return bool(np.all(np.abs(np.linalg.eigvals(as_float64(A_cl))) < 1 - margin))
 
 
 def _check_acl(A_cl, n: int) -> np.ndarray:
-    A = _f64(A_cl)
+    A = as_float64(A_cl)
     if A.ndim == 0 and n == 1:
         A = A.reshape(1, 1)
     if A.shape != (n, n):
@@ -703,8 +727,8 @@ def truncated_sum(A_cl, W, s: int, center=None, n_prefix_terms: int = 0):
     if isinstance(W, Box):
         W = box_to_zonotope(W)
     if isinstance(W, Zonotope):
-        c, G = _f64(W.center), _f64(W.generators)
-        A = _f64(A_cl).reshape(len(c), len(c))
+        c, G = as_float64(W.center), as_float64(W.generators)
+        A = as_float64(A_cl).reshape(len(c), len(c))
         Ai, cs, gs = np.eye(len(c)), np.zeros_like(c), []
         for _ in range(s):
             cs = cs + Ai @ c
@@ -713,9 +737,9 @@ def truncated_sum(A_cl, W, s: int, center=None, n_prefix_terms: int = 0):
         return zonotope(cs if center is None else center, np.concatenate(gs),
                         n_prefix=n_prefix_terms * G.shape[0])
     if isinstance(W, Hull):
-        V = _f64(W.canonical().vertices)
-        A = _f64(A_cl).reshape(V.shape[1], V.shape[1])
-        return _hull_from_points(_minkowski_power_sum(A, V, s))
+        V = as_float64(W.canonical().vertices)
+        A = as_float64(A_cl).reshape(V.shape[1], V.shape[1])
+        return convex_hull(_minkowski_power_sum(A, V, s))
     raise TypeError(f"W: Box, Zonotope or Hull expected, got {type(W).__name__}")
 
 
@@ -763,11 +787,11 @@ def mrpi(A_cl, W, eps: float = 1e-5, s_max: int = 500, directions=None,
     if not eps > 0:
         raise ValueError(f"eps: must be > 0, got {eps}")
     if isinstance(W, Box):
-        lo, hi = _f64(W.lo), _f64(W.hi)
+        lo, hi = as_float64(W.lo), as_float64(W.hi)
         if lo.ndim != 1 or lo.shape != hi.shape:
             raise ValueError(f"W (Box): lo, hi of equal shape (n,) expected, got {lo.shape}, {hi.shape}")
         if min_halfwidth is not None:
-            mh = np.broadcast_to(_f64(min_halfwidth), lo.shape)
+            mh = np.broadcast_to(as_float64(min_halfwidth), lo.shape)
             if not np.all(mh >= 0):
                 raise ValueError(f"min_halfwidth: must be ≥ 0, got {min_halfwidth}")
             mid, r = 0.5 * (lo + hi), np.maximum(0.5 * (hi - lo), mh)
@@ -814,13 +838,13 @@ def _prefix_terms(A: np.ndarray, G: np.ndarray, s: int, tail: float = 0.1) -> in
 
 
 def _mrpi_zonotope(A_cl, W: Zonotope, eps, s_max, nil_tol) -> MRPI:
-    c = _f64(W.center)
-    G = _f64(W.generators).reshape(-1, c.shape[0])
+    c = as_float64(W.center)
+    G = as_float64(W.generators).reshape(-1, c.shape[0])
     n = c.shape[0]
     A = _check_acl(A_cl, n)
     # facets of W₀ = W − c: f_iᵀ w ≤ g_i, g_i = Σ_k |f_iᵀ g_k| > 0
     Wz = zonotope(np.zeros(n), G)
-    F, g = _f64(Wz.normals), _f64(Wz.offsets)
+    F, g = as_float64(Wz.normals), as_float64(Wz.offsets)
     if not np.all(g > 0):
         raise ValueError("W: must be full-dimensional (origin-centred W₀ needs an interior)")
 
@@ -848,7 +872,7 @@ def _mrpi_zonotope(A_cl, W: Zonotope, eps, s_max, nil_tol) -> MRPI:
         outer = inner
     else:  # scaling about the centre keeps the facet normals
         k = 1.0 / (1.0 - a)
-        scaled = lambda v: None if v is None else _f64(v) * k
+        scaled = lambda v: None if v is None else as_float64(v) * k
         outer = Zonotope(inner.center, scaled(inner.generators), inner.normals,
                          scaled(inner.offsets), scaled(inner.prefix_offsets))
     return MRPI(inner, outer, int(s), float(a), float(eps), bool(exact))
@@ -856,12 +880,12 @@ def _mrpi_zonotope(A_cl, W: Zonotope, eps, s_max, nil_tol) -> MRPI:
 
 def _mrpi_hull(A_cl, W: Hull, eps, s_max, directions, nil_tol) -> MRPI:
     Wc = W.canonical()
-    V = _f64(Wc.vertices)
+    V = as_float64(Wc.vertices)
     n = V.shape[1]
     A = _check_acl(A_cl, n)
     c = V.mean(axis=0)
     V0 = V - c
-    F, g = _f64(Wc.normals), _f64(Wc.offsets) - _f64(Wc.normals) @ c
+    F, g = as_float64(Wc.normals), as_float64(Wc.offsets) - as_float64(Wc.normals) @ c
     if not np.all(g > 0):
         raise ValueError("W (Hull): the vertex mean must lie strictly inside (full-dimensional W)")
 
@@ -872,7 +896,7 @@ def _mrpi_hull(A_cl, W: Hull, eps, s_max, directions, nil_tol) -> MRPI:
         return float(np.max(h_W0(F @ As) / g))
 
     axes = np.concatenate([np.eye(n), -np.eye(n)])
-    D = _f64(default_directions(n) if directions is None else directions)
+    D = as_float64(default_directions(n) if directions is None else directions)
     if D.ndim != 2 or D.shape[1] != n:
         raise ValueError(f"directions: shape (F, {n}) expected, got {D.shape}")
     D = D / np.linalg.norm(D, axis=1, keepdims=True)
@@ -891,8 +915,8 @@ def _mrpi_hull(A_cl, W: Hull, eps, s_max, directions, nil_tol) -> MRPI:
     M_fn(s)
     centre = np.linalg.solve(np.eye(n) - A, c)
     inner_pts = _minkowski_power_sum(A, V0, s) + centre
-    inner = _hull_from_points(inner_pts)
+    inner = convex_hull(inner_pts)
     b = state["hD"] / (1.0 - a) + D @ centre
-    Vt = _hpoly_vertices(D, b, centre)
+    Vt = halfspace_vertices(D, b, centre)
     outer = TemplatePolytope(jnp.asarray(D), jnp.asarray(b), jnp.asarray(Vt), jnp.asarray(centre))
     return MRPI(inner, outer, int(s), float(a), float(eps), bool(exact))

@@ -11,6 +11,7 @@ from scipy.spatial import ConvexHull
 
 from hlip_jax import hlip
 from hlip_jax import invariant as inv
+from hlip_jax import sets
 from hlip_jax import set_figures
 
 Z0, TS, TD = 0.8, 0.3, 0.1
@@ -247,7 +248,6 @@ def test_facet_widths_in_blocks_are_the_whole_arrays_sums(monkeypatch):
     # h_f = Σ_k |N_f·g_k| (and the prefix widths of the first facet rows) formed a few rows
     # at a time: the same numbers bit for bit as the sums over the whole |N Gᵀ|, also where
     # the prefix rows span several blocks
-    from hlip_jax import sets
     monkeypatch.setattr(sets, "_WIDTH_ROWS", 7)
     rng = np.random.default_rng(3)
     G, N = rng.normal(size=(40, 3)), rng.normal(size=(53, 3))
@@ -277,8 +277,8 @@ def test_two_pass_membership_matches_full_facet_test():
     # the prefix facets describe F_{s0}/(1−α) ⊆ E: its vertices satisfy E's facets
     F0 = E.outer.prefix_offsets.shape[0]
     sub = inv.Zonotope(E.outer.center, None, E.outer.normals[:F0], E.outer.prefix_offsets)
-    V = inv._hpoly_vertices(*inv.zonotope_halfspaces(sub._replace(generators=np.zeros((0, 3)))),
-                            np.asarray(E.outer.center))
+    N, b = sets.zonotope_halfspaces(sub._replace(generators=np.zeros((0, 3))))
+    V = sets.halfspace_vertices(N, b, E.outer.center)
     assert np.all(np.asarray(E.outer._replace(prefix_offsets=None).contains(V, tol=1e-9)))
 
 
@@ -541,7 +541,6 @@ def test_analyse_in_the_heading_frame_pools_a_walking_bias():
 def test_membership_of_traced_sets_and_host_points():
     """Host points (numpy or a list) against a set inside jit (its leaves traced) and outside
     it: the same answer, exactly (points at ±0.5 and ±2 from a unit box's facets)."""
-    from hlip_jax import sets
     z = sets.zonotope(np.zeros(2), np.eye(2))
     P = np.array([[0.5, 0.5], [2.0, 0.0], [-0.5, 0.9]])
     want = [True, False, True]

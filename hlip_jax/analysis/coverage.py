@@ -28,13 +28,15 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
+from hlip_jax import invariant as inv
 from hlip_jax.analysis import estimators, splits, stats
 from hlip_jax.analysis.settings import DEFAULT_METHODS
 from hlip_jax.analysis.runs import RunErrors
 
-#: plane column values per analysis frame: the heading frame's sagittal and lateral planes, or
-#: the world's x and y (:func:`hlip_jax.analysis.errors.analysis_frame`)
-PLANES = {"heading": ("sagittal", "lateral"), "world": ("world x", "world y")}
+#: plane column values per analysis frame (:func:`hlip_jax.analysis.errors.analysis_frame`):
+#: the heading frame's sagittal and lateral planes, or the world's x and y; defined with the
+#: frames in :data:`hlip_jax.invariant.PLANES`
+PLANES = inv.PLANES
 
 #: coverage.csv columns, in order: level = "run" or "step"; q = the method's level (NaN for
 #: box and hull); split and assumption (:mod:`hlip_jax.analysis.splits`); train_runs /
@@ -176,7 +178,6 @@ def consistency(A_cl, runs: Sequence[RunErrors]) -> Consistency:
     the coverage of the kept errors by E; with two or more runs also the held-out coverage of
     alternate runs (:func:`hlip_jax.analysis.splits.interleave` over the run order).
     ValueError where W cannot be formed (no kept disturbance) or A_cl is not Schur stable."""
-    from hlip_jax import invariant as inv
     held = splits.interleave(list(range(len(runs)))) if len(runs) >= 2 else None
     planes = []
     for p in range(A_cl.shape[0]):
