@@ -1,0 +1,107 @@
+"""The Cassie test set (docs/cassie_protocol/cassie_test.toml) has the structure its acceptance
+needs and shares no seed or push time with the training and validation sets."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+from hlip_jax import rollout, sweep
+
+ROOT = Path(__file__).resolve().parents[1]
+TEST_SET = ROOT / "docs" / "cassie_protocol" / "cassie_test.toml"
+TRAIN = [ROOT / "sweeps" / "cassie_train.toml",
+         ROOT / "docs" / "experiments" / "cassie_train_pushes.toml"]
+VALIDATION = [ROOT / "sweeps" / "cassie_validation.toml",
+              ROOT / "docs" / "experiments" / "cassie_speeds_val.toml"]
+PAPER_PATHS = {"circle", "sinusoid", "square", "cardioid"}
+
+
+@pytest.fixture(scope="module")
+def test_set():
+    return sweep.load_sweep(TEST_SET).scenarios
+
+
+def _seeds_and_times(files):
+    seeds, times = set(), set()
+    for f in files:
+        for s in sweep.load_sweep(f).scenarios:
+            seeds.add(s.seed)
+            times.update(round(p.time, 6) for p in s.disturbance.pushes)
+    return seeds, times
+
+
+def _direction(deg):
+    return round(deg % 360.0, 6)
+
+
+def test_it_is_all_cassie_and_gpu_sized(test_set):
+    assert all(s.plant == "cassie" for s in test_set)
+    assert 150 <= len(test_set) <= 400
+    assert max(s.duration for s in test_set) <= 40.0
+
+
+def test_200n_pushes_from_four_directions_at_16_phases(test_set):
+    times = defaultdict(set)
+    for s in test_set:
+        for p in s.disturbance.pushes:
+            if p.force == 200.0 and s.name.startswith("push-200-"):
+                assert p.duration == pytest.approx(0.1)
+                assert s.path.shape == "line" and s.path.params.get("rotation", 0.0) == 0.0
+                assert s.path.params.get("peak_speed", 0.5) == 0.5
+                times[_direction(p.direction)].add(round(p.time, 6))
+    # forward and backward along the line (+x), left and right of it
+    assert set(times) == {0.0, 180.0, 90.0, 270.0}
+    gait_step = max(s.hlip.t_ssp + s.hlip.t_dsp for s in test_set)
+    for d, ts in times.items():
+        assert len(ts) >= 16, d
+        # spread over more than one stride of the preset's gait
+        assert max(ts) - min(ts) > 2 * gait_step, d
+
+
+def test_100n_pushes_from_diagonals_too(test_set):
+    dirs = {_direction(p.direction) for s in test_set for p in s.disturbance.pushes
+            if p.force == 100.0}
+    assert {0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0} <= dirs
+
+
+def test_noisy_runs_speeds_turns_and_replicates(test_set):
+    noisy = [s for s in test_set if s.disturbance.noise_v == 0.03]
+    assert len(noisy) >= 48
+    assert {s.path.shape for s in noisy} >= {"line", "circle", "sinusoid"}
+    speeds = {s.path.params["peak_speed"] for s in test_set
+              if s.path.shape == "line" and not s.disturbance.pushes
+              and s.disturbance.noise_v == 0.0}
+    assert min(speeds) == 0.25 and max(speeds) == 1.5 and len(speeds) >= 5
+    turns = [s for s in test_set if s.path.shape == "circle" and s.path.params["radius"] == 0.1]
+    assert {s.path.params.get("direction", "ccw") for s in turns} == {"ccw", "cw"}
+    reps = defaultdict(set)
+    for s in test_set:
+        if "-rep" in s.name:
+            reps[s.name.split("-rep")[0]].add(s.seed)
+    assert all(len(v) >= 3 for v in reps.values()) and len(reps) >= 17
+
+
+def test_the_paper_paths_with_the_classic_deadbeat_gain(test_set):
+    by_gain = defaultdict(set)
+    for s in test_set:
+        if s.name.startswith("paper-") and s.path.shape in PAPER_PATHS:
+            k = rollout.stepping_gain(s)
+            by_gain[(s.gain.type, s.gain.with_position)].add(s.path.shape)
+            if s.gain.type == "deadbeat" and not s.gain.with_position:
+                # K = [1, T_D + coth(lambda T_S)/lambda] on [p, v], nothing on c
+                assert k[0, 0] == 0.0 and k[0, 1] == pytest.approx(1.0)
+            assert s.path.params.get("peak_speed", 0.5) == 0.5
+    assert by_gain[("deadbeat", False)] == PAPER_PATHS
+    assert by_gain[("lqr", True)] == PAPER_PATHS
+
+
+def test_no_seed_or_push_time_of_training_or_validation(test_set):
+    seeds = {s.seed for s in test_set}
+    times = {round(p.time, 6) for s in test_set for p in s.disturbance.pushes}
+    for files in (TRAIN, VALIDATION):
+        other_seeds, other_times = _seeds_and_times(files)
+        assert not seeds & other_seeds
+        assert not times & other_times
