@@ -21,11 +21,20 @@ none is left for those tasks and the process hangs, so the pool is given 2N thre
 Each setting is added only where the user's environment does not already choose it
 (``XLA_FLAGS`` naming the flag, ``PJRT_NPROC`` or ``NPROC`` set to a count in ASCII digits:
 a value such as ``²`` counts as unset).
+
+**Flags XLA would abort on.** XLA parses ``XLA_FLAGS`` when JAX starts its backend and ends
+the process on a value it cannot read (a device count of ``abc`` or ``²`` prints its whole flag
+listing and exits 1; ``0`` or ``-1`` fails to start the CPU backend).  :func:`problem` checks
+the two flags this module reads or sets before that: each device count must be a count of
+:data:`MAX_CPU_DEVICES` or fewer in ASCII digits, each ``--xla_gpu_deterministic_ops`` value
+``true`` or ``false`` (or ``1``/``0``); :func:`apply` refuses anything else in one line,
+exit 2.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 from typing import MutableMapping
 
 FLAG = "--xla_gpu_deterministic_ops"
@@ -84,10 +93,39 @@ def cpu_devices(flags: str) -> int:
     return 1
 
 
+#: the most CPU devices a device count may ask for (each is a thread pool's worth of work)
+MAX_CPU_DEVICES = 4096
+
+#: the values XLA reads as a boolean flag's (lower-cased)
+_BOOLS = ("true", "false", "1", "0")
+
+
+def problem(flags: str) -> str | None:
+    """Why XLA would refuse the ``XLA_FLAGS`` value ``flags`` at start-up, for the flags this
+    module reads or sets (:data:`DEVICES_FLAG`, :data:`FLAG`), or None: a device count that
+    is not a count from 1 to :data:`MAX_CPU_DEVICES` in ASCII digits, a deterministic-ops
+    value other than true/false/1/0.  One line naming ``XLA_FLAGS`` and what is allowed."""
+    for f in flags.split():
+        name, eq, value = f.partition("=")
+        if name == DEVICES_FLAG and not (_is_count(value) and 1 <= int(value) <= MAX_CPU_DEVICES):
+            return (f"XLA_FLAGS: {DEVICES_FLAG}={value[:40]!r} is not a device count; allowed: "
+                    f"an integer from 1 to {MAX_CPU_DEVICES} in ASCII digits, e.g. {DEVICES_FLAG}=2")
+        if name == FLAG and eq and value.lower() not in _BOOLS:
+            return (f"XLA_FLAGS: {FLAG}={value[:40]!r} is not a boolean; allowed: {FLAG}=true or "
+                    f"{FLAG}=false")
+    return None
+
+
 def apply(environ: MutableMapping[str, str] = os.environ, cores: int | None = None) -> None:
     """Set ``environ`` as the module doc says (call before the first JAX computation: XLA
     reads the variables when the backend starts).  ``cores`` defaults to
-    :func:`usable_cores`."""
+    :func:`usable_cores`.  A user's ``XLA_FLAGS`` that XLA would abort on (:func:`problem`)
+    is refused as argparse refuses a bad option: one line on stderr, ``SystemExit(2)``,
+    ``environ`` left as it was."""
+    why = problem(environ.get("XLA_FLAGS", ""))
+    if why is not None:
+        print(f"hlip-sweep: error: {why}", file=sys.stderr)
+        raise SystemExit(2)
     cores = usable_cores() if cores is None else cores
     flags = with_deterministic_ops(environ.get("XLA_FLAGS", ""))
     if cores > 1:
