@@ -45,6 +45,7 @@ import json
 import math
 import os
 import platform
+import stat
 import subprocess
 import tempfile
 import zipfile
@@ -276,10 +277,32 @@ def _with_later_fields(z: dict) -> dict:
     return z
 
 
+def _not_regular(path) -> str | None:
+    """Why ``path`` cannot be a chunk file before it is opened, or None: missing, a symbolic
+    link (a link to another run's chunk of the same identity would pass every other check;
+    chunks are only ever written as regular files) or not a regular file (a FIFO would block
+    the reader, a directory is no chunk)."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return "missing"
+    except OSError as err:
+        return f"unreadable ({err.strerror or err})"
+    if stat.S_ISLNK(st.st_mode):
+        return "a symbolic link, not a chunk file (chunks are regular files written by the run)"
+    if not stat.S_ISREG(st.st_mode):
+        return "not a regular file"
+    return None
+
+
 def load_chunk(path) -> dict[str, np.ndarray]:
     """Every array of a chunk file, read in full (a field of :data:`LATER_FIELDS` that an older
-    chunk lacks is filled in); StoreError naming the file if it is unreadable, truncated or
-    fails a CRC check."""
+    chunk lacks is filled in); StoreError naming the file if it is not a regular file
+    (:func:`_not_regular`), unreadable, truncated or fails a CRC check."""
+    why = _not_regular(path)
+    if why is not None:
+        raise StoreError(f"{path}: {why}; `hlip-sweep run SWEEP --out DIR --resume` simulates "
+                         "it again")
     try:
         return _with_later_fields(_read_npz(path))
     except _CORRUPT as err:
@@ -296,11 +319,13 @@ def chunk_problem(path, start: int, stop: int, run_id: str | None = None) -> str
     ``run_id``, or None if it is sound: missing, unreadable or corrupt (every array is read,
     so every CRC is checked), a log field missing, an array whose leading size is not the
     chunk's scenario count, step arrays of unequal step counts, an ``index`` other than
-    start..stop-1, or written by another run (its ``run_id``; chunks written before the
+    start..stop-1, a symbolic link or not a regular file (:func:`_not_regular`), or written
+    by another run (its ``run_id``; chunks written before the
     field existed carry none and are not checked)."""
     path = Path(path)
-    if not path.is_file():
-        return "missing"
+    why = _not_regular(path)
+    if why is not None:
+        return why
     try:
         z = _read_npz(path)
     except _CORRUPT as err:
@@ -331,7 +356,7 @@ def check_chunks(out_dir) -> None:
     n, batch = int(man.get("n_scenarios", 0)), int(man.get("batch", 0))
     for i, (a, b) in enumerate(chunk_ranges(n, batch) if n and batch else ()):
         p = chunk_path(out_dir, i)
-        why = chunk_problem(p, a, b, man.get("config_hash")) if p.is_file() else None
+        why = chunk_problem(p, a, b, man.get("config_hash")) if os.path.lexists(p) else None
         if why is not None:
             raise StoreError(f"{p}: {why}; `hlip-sweep run SWEEP --out {out_dir} --resume` "
                              f"simulates the chunk again")
@@ -433,6 +458,44 @@ def _status_name(st: int, z: dict, j: int) -> str:
     return name
 
 
+#: the summary columns that come from the chunks (the rest from the manifest's configs)
+RESULT_COLUMNS = ("status", "fail_step", *SUMMARY_METRICS)
+
+
+def _result_cells(z, j: int) -> dict:
+    """The :data:`RESULT_COLUMNS` of row ``j`` of a chunk ``z`` (a dict or an open .npz)."""
+    row = {"status": _status_name(int(z["status"][j]), z, j),
+           "fail_step": int(z["fail_step"][j])}
+    for k in SUMMARY_METRICS:
+        if f"metric.{k}" not in z:      # a chunk written before the metric existed
+            row[k] = math.nan
+            continue
+        v = z[f"metric.{k}"][j]
+        row[k] = int(v) if k in ("steps", "qp_failures") else float(v)
+    return row
+
+
+def _stored_results(out_dir) -> dict[int, dict]:
+    """scenario index → its :data:`RESULT_COLUMNS` as the stored chunks give them, reading
+    only the chunks' ``index``, ``status``, ``fail_step`` and ``metric.*`` arrays."""
+    out: dict[int, dict] = {}
+    for f in chunk_files(out_dir):
+        why = _not_regular(f)
+        if why is not None:
+            raise StoreError(f"{f}: {why}; `hlip-sweep run SWEEP --out DIR --resume` simulates "
+                             "it again")
+        try:
+            with np.load(f, allow_pickle=False) as npz:
+                z = {k: npz[k] for k in npz.files
+                     if k in ("index", "status", "fail_step") or k.startswith("metric.")}
+            for j, i in enumerate(z["index"]):
+                out[int(i)] = _result_cells(z, j)
+        except _CORRUPT as err:
+            raise StoreError(f"{f}: {_corrupt_text(err)}; `hlip-sweep run SWEEP --out DIR "
+                             "--resume` simulates it again") from None
+    return out
+
+
 def write_summary(out_dir) -> Path:
     """Write ``summary.csv`` from the manifest's configs and the stored chunk metrics."""
     man = read_manifest(out_dir)
@@ -447,15 +510,7 @@ def write_summary(out_dir) -> Path:
             row = {"index": i, "name": cfg["name"], "path": cfg["swept"].get("path", ""),
                    "shape": cfg["path"]["shape"], "plant": cfg["plant"], "seed": cfg["seed"]}
             row.update({k: v for k, v in cfg["swept"].items() if k != "path"})
-            st = int(z["status"][j])
-            row["status"] = _status_name(st, z, j)
-            row["fail_step"] = int(z["fail_step"][j])
-            for k in SUMMARY_METRICS:
-                if f"metric.{k}" not in z:      # a chunk written before the metric existed
-                    row[k] = math.nan
-                    continue
-                v = z[f"metric.{k}"][j]
-                row[k] = int(v) if k in ("steps", "qp_failures") else float(v)
+            row.update(_result_cells(z, j))
             rows[i] = row
     buf = io.StringIO()
     wr = csv.writer(buf, lineterminator="\n")
@@ -468,20 +523,40 @@ def write_summary(out_dir) -> Path:
 
 
 def read_summary(out_dir, man: dict | None = None) -> list[dict]:
-    """Rows of ``summary.csv`` as dicts (numbers parsed where they parse); StoreError where a
-    row's scenario cells (name, path, shape, plant, seed, swept fields) differ from the
-    manifest's config of its index (``man``, read if not given): rows edited or swapped."""
+    """Rows of ``summary.csv`` as dicts (numbers parsed where they parse), bound to the run
+    that made them: StoreError where a row's scenario cells (name, path, shape, plant, seed,
+    swept fields) differ from the manifest's config of its index (``man``, read if not given),
+    or its result cells (:data:`RESULT_COLUMNS`: status, fail step, metrics) from what the
+    stored chunks say, or one of those columns is missing: rows edited, swapped or of
+    another run.  The message names the line and the column and says to delete the file
+    (``report`` rewrites it from the chunks)."""
     p = Path(out_dir) / SUMMARY
     if not p.is_file():
         raise StoreError(f"{out_dir}: no {SUMMARY}")
     rows = _read_csv(p)
     configs = (man if man is not None else read_manifest(out_dir))["configs"]
+    stored = _stored_results(out_dir)
     for n, r in enumerate(rows, start=2):
-        bad = _summary_row_mismatch(r, configs)
+        bad = _summary_row_mismatch(r, configs) or _result_mismatch(r, stored)
         if bad:
             raise StoreError(f"{p}: line {n}: {bad} (edited or swapped rows); delete it and run "
                              f"`hlip-sweep report` again to rewrite it from the chunks")
     return rows
+
+
+def _result_mismatch(row: dict, stored: dict[int, dict]) -> str:
+    """What in the result cells of summary row ``row`` (its index already checked) differs
+    from the stored chunks ('' if nothing)."""
+    i = row["index"]
+    if i not in stored:
+        return f"scenario {i} has no stored chunk"
+    for k, v in stored[i].items():
+        if k not in row:
+            return f"column {k!r} is missing"
+        if _cell(row[k]) != _cell(v) and not _same_number(row[k], v):
+            return (f"column {k!r} of scenario {i} is {_printable_cell(row[k])}, the chunks "
+                    f"say {_printable_cell(v)}")
+    return ""
 
 
 def _summary_row_mismatch(row: dict, configs: list) -> str:

@@ -1,0 +1,169 @@
+"""Issue 52, fourth round (docs/reliability.md): results bound to the run that made them, chunk
+files that are regular files, XLA flags XLA would abort on refused before JAX starts, read-only
+results directories, and the fourth hostile round's cases.
+
+Runs use the fake closed loop of test_store.py (``HLIP_SWEEP_SIMULATE``): these tests check the
+command line and the store, not the dynamics.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+
+import pytest
+
+from hlip_jax import store, xla_flags
+from test_cli import TINY, _one_line_error, _run_ok, cli, fake_loop  # noqa: F401 (fixture)
+
+
+@pytest.fixture
+def tiny_sweep(tmp_path):
+    p = tmp_path / "clitiny.toml"
+    p.write_text(TINY)
+    return p
+
+
+@pytest.fixture
+def done(tmp_path, tiny_sweep, capsys, fake_loop):
+    """A finished run of the tiny sweep (4 scenarios, one chunk each), with its summary."""
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out)
+    return out
+
+
+def _edit_cell(p: Path, line: int, column: str, value: str) -> str:
+    """Set ``column`` of CSV line ``line`` (2 = the first row) to ``value``; the old cell."""
+    rows = list(csv.reader(p.open(newline="")))
+    k = rows[0].index(column)
+    old, rows[line - 1][k] = rows[line - 1][k], value
+    with p.open("w", newline="") as fh:
+        csv.writer(fh, lineterminator="\n").writerows(rows)
+    return old
+
+
+# ------------------------------------------------------------------------------------------
+# XLA_FLAGS
+
+
+@pytest.mark.parametrize("value", ["abc", "²", "0", "-1", "+2", "2.0", "", "5000",
+                                   "99999999999999999999"])
+def test_a_device_count_xla_would_abort_on_is_refused(value):
+    """`XLA_FLAGS=--xla_force_host_platform_device_count=²` (or abc, 0, ...) let JAX start and
+    XLA then aborted with its whole flag listing (or the CPU backend failed to start): the
+    flag is now refused before, in one line naming XLA_FLAGS and what is allowed."""
+    flags = f"--xla_dump_to=/tmp/x {xla_flags.DEVICES_FLAG}={value}"
+    why = xla_flags.problem(flags)
+    assert why is not None and why.startswith("XLA_FLAGS: ") and "allowed: an integer" in why
+    assert "\n" not in why and "\x1b" not in why
+    env = {"XLA_FLAGS": flags}
+    with pytest.raises(SystemExit) as ex:
+        xla_flags.apply(env, cores=2)
+    assert ex.value.code == 2 and env == {"XLA_FLAGS": flags}     # nothing set
+
+
+def test_good_xla_flags_pass_and_a_bad_boolean_is_refused():
+    d, f = xla_flags.DEVICES_FLAG, xla_flags.FLAG
+    for ok in ("", f"{d}=1", f"{d}=007", f"{d}=4096", f"{f}=false", f"{f}=TRUE", f,
+               "--xla_dump_to=/tmp/x"):
+        assert xla_flags.problem(ok) is None, ok
+    assert "allowed" in xla_flags.problem(f"{f}=maybe")
+    assert "allowed" in xla_flags.problem(f"{d}=2 {d}=x")       # every occurrence is checked
+
+
+def test_the_cli_refuses_a_bad_device_count_in_one_line(monkeypatch, capsys):
+    monkeypatch.setenv("XLA_FLAGS", f"{xla_flags.DEVICES_FLAG}=\x1b[31mabc")
+    code, out, err = cli(capsys, "list")
+    line = _one_line_error(code, err)
+    assert "XLA_FLAGS" in line and "allowed" in line and "\x1b" not in line and out == ""
+
+
+# ------------------------------------------------------------------------------------------
+# summary.csv bound to the chunks
+
+
+@pytest.mark.parametrize("column,value", [("status", "fell"), ("final_pos_err", "0.001"),
+                                          ("fail_step", "7"), ("steps", "99")])
+def test_a_summary_with_edited_result_cells_is_refused(done, capsys, column, value):
+    """A hand-edited status or metric cell of summary.csv was reported as written: the report
+    now checks every result cell against the chunks and refuses a summary that differs, naming
+    the file, the line and the column; deleted, the summary is rewritten from the chunks."""
+    p = done / "summary.csv"
+    good = p.read_bytes()
+    old = _edit_cell(p, 3, column, value)
+    assert old != value
+    code, _, err = cli(capsys, "report", done)
+    line = _one_line_error(code, err)
+    assert f"summary.csv: line 3: column {column!r} of scenario 1 is" in line
+    assert "the chunks say" in line and "delete it" in line
+    assert not (done / "report.md").exists()
+    p.unlink()
+    code, _, err = cli(capsys, "report", done)
+    assert code == 0, err
+    assert p.read_bytes() == good
+
+
+def test_a_summary_missing_a_result_column_is_refused(done, capsys):
+    p = done / "summary.csv"
+    rows = list(csv.reader(p.open(newline="")))
+    k = rows[0].index("status")
+    with p.open("w", newline="") as fh:
+        csv.writer(fh, lineterminator="\n").writerows([r[:k] + r[k + 1:] for r in rows])
+    code, _, err = cli(capsys, "report", done)
+    assert "column 'status' is missing" in _one_line_error(code, err)
+
+
+def test_an_equal_number_written_otherwise_is_accepted(done):
+    p = done / "summary.csv"
+    old = _edit_cell(p, 2, "final_pos_err", "x")
+    _edit_cell(p, 2, "final_pos_err", f"{float(old):.17e}")     # the same float, other digits
+    assert len(store.read_summary(done)) == 4
+
+
+# ------------------------------------------------------------------------------------------
+# chunk files are regular files
+
+
+def test_a_symlinked_chunk_is_refused_by_report_and_replaced_on_resume(tmp_path, done, tiny_sweep,
+                                                                        capsys):
+    """A chunk that is a symbolic link to the same chunk of another run of the same identity
+    was accepted (every other check passes): `report` now names it, exit 2; `--resume`
+    names it and simulates the chunk again as a regular file, the link's target untouched."""
+    other = tmp_path / "other"
+    _run_ok(capsys, tiny_sweep, other)
+    c0 = store.chunk_path(done, 0)
+    target = store.chunk_path(other, 0)
+    before = target.read_bytes()
+    c0.unlink()
+    c0.symlink_to(target)
+    (done / "summary.csv").unlink()
+    code, _, err = cli(capsys, "report", done)
+    line = _one_line_error(code, err)
+    assert "chunk_00000.npz" in line and "symbolic link" in line
+    with pytest.raises(store.StoreError, match="symbolic link"):
+        store.load_chunk(c0)
+    assert "symbolic link" in store.chunk_problem(c0, 0, 1)
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", done, "--batch", "1", "--no-report",
+                       "--resume")
+    assert code == 0, err
+    assert "chunk_00000.npz: a symbolic link" in err
+    assert not c0.is_symlink() and c0.is_file() and target.read_bytes() == before
+    assert store.chunk_problem(c0, 0, 1) is None
+
+
+def test_a_fifo_or_a_directory_as_a_chunk_is_one_line(done, capsys):
+    """A FIFO as a chunk blocked the reader; a directory was named only by the error of
+    opening it: both are 'not a regular file', named, exit 2, without opening the FIFO."""
+    c1 = store.chunk_path(done, 1)
+    c1.unlink()
+    os.mkfifo(c1)
+    code, _, err = cli(capsys, "report", done)
+    line = _one_line_error(code, err)
+    assert "chunk_00001.npz: not a regular file" in line
+    with pytest.raises(store.StoreError, match="not a regular file"):
+        store.load_chunk(c1)
+    c1.unlink()
+    c1.mkdir()
+    code, _, err = cli(capsys, "report", done)
+    assert "chunk_00001.npz: not a regular file" in _one_line_error(code, err)
