@@ -827,12 +827,16 @@ def results_lock(out: Path):
     made_dir = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
-        inside(out, LOCK)
-        made_lock = not (out / LOCK).exists()
-        fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
     except OSError as err:
         raise StoreError(f"--out {out}: cannot create the results directory: "
                          f"{err.strerror or err}") from None
+    inside(out, LOCK)
+    made_lock = not (out / LOCK).exists()
+    try:
+        fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)
+    except OSError as err:          # a read-only directory (or lock file)
+        raise StoreError(f"--out {out}: cannot open its lock file {LOCK}: "
+                         f"{err.strerror or err}; the directory must be writable") from None
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -167,3 +167,119 @@ def test_a_fifo_or_a_directory_as_a_chunk_is_one_line(done, capsys):
     c1.mkdir()
     code, _, err = cli(capsys, "report", done)
     assert "chunk_00001.npz: not a regular file" in _one_line_error(code, err)
+
+
+# ------------------------------------------------------------------------------------------
+# read-only results directories
+
+
+def _read_only(monkeypatch, root: Path) -> None:
+    """Make every file and folder under ``root`` read-only for this process, as ``chmod -R
+    a-w`` does for a user other than root (the tests may run as root, which writes through
+    permissions): creating, opening for writing, renaming, replacing and removing anything
+    under ``root`` raise PermissionError naming the path."""
+    import builtins
+    import errno
+    import io
+    import tempfile
+    root = Path(os.path.abspath(root))
+
+    def under(p) -> bool:
+        return isinstance(p, (str, bytes, os.PathLike)) and \
+            Path(os.path.abspath(os.fsdecode(p))).is_relative_to(root)
+
+    def deny(p):
+        raise PermissionError(errno.EACCES, "Permission denied", os.fsdecode(p))
+
+    real = {"open": builtins.open, "os_open": os.open, "mkstemp": tempfile.mkstemp,
+            "mkdir": os.mkdir, "replace": os.replace, "rename": os.rename,
+            "unlink": os.unlink, "rmdir": os.rmdir}
+
+    def open_(file, mode="r", *a, **kw):
+        if under(file) and any(c in mode for c in "wax+"):
+            deny(file)
+        return real["open"](file, mode, *a, **kw)
+
+    def os_open(path, flags, *a, **kw):
+        if under(path) and flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_TRUNC):
+            deny(path)
+        return real["os_open"](path, flags, *a, **kw)
+
+    def mkstemp(*a, dir=None, **kw):
+        if dir is not None and under(dir):
+            deny(dir)
+        return real["mkstemp"](*a, dir=dir, **kw)
+
+    def one(name):
+        def f(p, *a, **kw):
+            if under(p) or (a and under(a[0])):
+                deny(p)
+            return real[name](p, *a, **kw)
+        return f
+
+    monkeypatch.setattr(builtins, "open", open_)
+    monkeypatch.setattr(io, "open", open_)
+    monkeypatch.setattr(os, "open", os_open)
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    for name in ("mkdir", "replace", "rename", "unlink", "rmdir"):
+        monkeypatch.setattr(os, name, one(name))
+
+
+def _files(root: Path) -> dict:
+    return {p.relative_to(root): (p.read_bytes() if p.is_file() else None)
+            for p in sorted(root.rglob("*"))}
+
+
+@pytest.mark.parametrize("cmd", ["report", "coverage"])
+def test_a_read_only_results_directory_is_one_line_and_left_as_it_was(done, capsys, monkeypatch,
+                                                                      cmd):
+    (done / "summary.csv").unlink()          # the report has to write it: the first write fails
+    (done / "coverage.csv").unlink()
+    before = _files(done)
+    _read_only(monkeypatch, done)
+    code, _, err = cli(capsys, cmd, done)
+    line = _one_line_error(code, err)
+    assert str(done) in line and "Permission denied" in line
+    monkeypatch.undo()
+    assert _files(done) == before
+
+
+def test_a_run_into_a_read_only_directory_loses_nothing(tmp_path, tiny_sweep, capsys, fake_loop,
+                                                         monkeypatch):
+    """--resume into a read-only results directory: exit 2 naming --out and its lock file,
+    nothing changed; a directory that turns read-only during the run: exit 1 (the run is
+    incomplete) naming the path, the finished chunks kept, and --resume, once it is writable,
+    ends with the chunks of an uninterrupted run."""
+    ref = tmp_path / "ref"
+    _run_ok(capsys, tiny_sweep, ref)
+    out = tmp_path / "o"
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--batch", "1", "--no-report",
+                       "--quiet", "--max-chunks", "2")
+    assert code == 1, err
+    before = _files(out)
+    with monkeypatch.context() as m:
+        _read_only(m, out)
+        code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--batch", "1",
+                           "--no-report", "--quiet", "--resume")
+    line = _one_line_error(code, err)
+    assert f"--out {out}" in line and ".lock" in line and "Permission denied" in line
+    assert _files(out) == before
+    from hlip_jax import runner
+    real_verify = runner._verify_stored
+
+    def turn_read_only(*a, **kw):            # after the stored chunks are verified
+        good = real_verify(*a, **kw)
+        _read_only(monkeypatch, out / "chunks")
+        return good
+    monkeypatch.setattr(runner, "_verify_stored", turn_read_only)
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", out, "--batch", "1", "--no-report",
+                       "--quiet", "--resume")
+    line = _one_line_error(code, err, expect_code=1)
+    assert "Permission denied" in line and str(out / "chunks") in line and "--resume" in line
+    monkeypatch.undo()
+    for i in (0, 1):
+        assert store.chunk_path(out, i).read_bytes() == before[Path("chunks") / f"chunk_0000{i}.npz"]
+    monkeypatch.setenv("HLIP_SWEEP_SIMULATE", "test_store:fake_simulate")
+    _run_ok(capsys, tiny_sweep, out, "--resume")
+    for i in range(4):
+        assert store.chunk_path(out, i).read_bytes() == store.chunk_path(ref, i).read_bytes()
