@@ -75,6 +75,7 @@ PROCESS_STORE = ".process-{}"
 LOCK = ".lock"              # held (flock) by the run writing the directory; names its pid
 SUMMARY = "summary.csv"
 CHUNK_DIR = "chunks"
+TICK_DIR = "ticks"          # per-tick logs of the scenarios chosen with --ticks
 STATUS_NAMES = steplog.STATUS_NAMES
 LOG_FIELDS = steplog.FIELDS
 STEP_FIELDS = steplog.STEP_FIELDS      # padded when chunks of different K are concatenated
@@ -173,7 +174,7 @@ def read_manifest(out_dir) -> dict:
     p = Path(out_dir) / MANIFEST
     if not Path(out_dir).is_dir():
         raise StoreError(f"{out_dir}: results directory not found")
-    if not p.is_file():
+    if not os.path.lexists(p):
         raise StoreError(f"{out_dir}: not a results directory (no {MANIFEST})")
     if not p.is_file() or p.stat().st_size > MANIFEST_MAX_BYTES:
         raise StoreError(f"{p}: not a manifest (a regular file of at most {MANIFEST_MAX_BYTES} "
@@ -351,15 +352,50 @@ def chunk_problem(path, start: int, stop: int, run_id: str | None = None) -> str
 
 def check_chunks(out_dir) -> None:
     """Verify every stored chunk of a results directory fully (:func:`chunk_problem`) against
-    the manifest's chunk size; StoreError naming the first bad chunk."""
+    the manifest's chunk size and run id; StoreError naming the first bad chunk, a ``chunks``
+    folder that is a symbolic link (another run's chunks), or a file named like a chunk that
+    is none of the run's (``chunk_00099.npz`` of a 4-chunk run, ``chunk_1.npz``: every reader
+    of ``chunks/`` would take its scenarios).  A manifest without a run id (``config_hash``)
+    is checked against the first chunk's, so that chunks of two runs are never mixed."""
     man = read_manifest(out_dir)
-    n, batch = int(man.get("n_scenarios", 0)), int(man.get("batch", 0))
-    for i, (a, b) in enumerate(chunk_ranges(n, batch) if n and batch else ()):
+    ranges = _run_chunks_only(out_dir, man)
+    run_id = man.get("config_hash")
+    for i, (a, b) in enumerate(ranges):
         p = chunk_path(out_dir, i)
-        why = chunk_problem(p, a, b, man.get("config_hash")) if os.path.lexists(p) else None
+        if not os.path.lexists(p):
+            continue
+        if not isinstance(run_id, str):
+            run_id = _run_id_of(p)
+        why = chunk_problem(p, a, b, run_id)
         if why is not None:
             raise StoreError(f"{p}: {why}; `hlip-sweep run SWEEP --out {out_dir} --resume` "
                              f"simulates the chunk again")
+
+
+def _run_chunks_only(out_dir, man: dict) -> list[tuple[int, int]]:
+    """The chunk ranges of the run of manifest ``man``; StoreError if ``chunks`` is a symbolic
+    link or holds a file named like a chunk that is none of the run's."""
+    inside(out_dir, CHUNK_DIR)
+    n, batch = int(man.get("n_scenarios", 0)), int(man.get("batch", 0))
+    ranges = chunk_ranges(n, batch) if n and batch else []
+    names = {chunk_path(out_dir, i).name for i in range(len(ranges))}
+    stray = [f for f in chunk_files(out_dir) if f.name not in names]
+    if stray:
+        raise StoreError(f"{stray[0]}: not a chunk of this run ({len(ranges)} chunks, "
+                         f"chunk_00000.npz to chunk_{max(len(ranges) - 1, 0):05d}.npz); "
+                         "remove it")
+    return ranges
+
+
+def _run_id_of(path) -> str | None:
+    """The run id a chunk file records (None: unreadable, or written before run ids)."""
+    if _not_regular(path) is not None:
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return str(z[RUN_ID][0]) if RUN_ID in z.files and z[RUN_ID].size else None
+    except _CORRUPT:
+        return None
 
 
 def _log_to_arrays(log, n: int) -> dict[str, np.ndarray]:
@@ -497,11 +533,14 @@ def _stored_results(out_dir) -> dict[int, dict]:
 
 
 def write_summary(out_dir) -> Path:
-    """Write ``summary.csv`` from the manifest's configs and the stored chunk metrics."""
+    """Write ``summary.csv`` from the manifest's configs and the stored chunk metrics
+    (StoreError, nothing written, where ``chunks/`` holds a file that is none of the run's
+    chunks: :func:`check_chunks`)."""
     man = read_manifest(out_dir)
     configs = man["configs"]
     cols = summary_columns(configs)
     rows: dict[int, dict] = {}
+    _run_chunks_only(out_dir, man)
     for f in chunk_files(out_dir):
         z = load_chunk(f)
         for j, i in enumerate(z["index"]):
@@ -533,15 +572,32 @@ def read_summary(out_dir, man: dict | None = None) -> list[dict]:
     p = Path(out_dir) / SUMMARY
     if not p.is_file():
         raise StoreError(f"{out_dir}: no {SUMMARY}")
-    rows = _read_csv(p)
-    configs = (man if man is not None else read_manifest(out_dir))["configs"]
+    try:
+        head, rows = _read_csv_table(p)
+    except (csv.Error, UnicodeDecodeError, OSError) as err:
+        raise StoreError(f"{p}: unreadable ({err}); delete it and run `hlip-sweep report` again "
+                         "to rewrite it from the chunks") from None
+    man = man if man is not None else read_manifest(out_dir)
+    configs = man["configs"]
+    _run_chunks_only(out_dir, man)
     stored = _stored_results(out_dir)
+    extra = [c for c in head if c not in summary_columns(configs)]
+    if extra:
+        _refuse_summary(p, 1, f"column {_printable_cell(extra[0])} is not a summary column")
     for n, r in enumerate(rows, start=2):
+        if None in r or None in r.values():     # DictReader: extra cells, missing cells
+            cells = sum(v is not None for k, v in r.items() if k is not None) + len(r.get(None) or ())
+            _refuse_summary(p, n, f"{cells} cells for the header's {len(head)} columns")
         bad = _summary_row_mismatch(r, configs) or _result_mismatch(r, stored)
         if bad:
-            raise StoreError(f"{p}: line {n}: {bad} (edited or swapped rows); delete it and run "
-                             f"`hlip-sweep report` again to rewrite it from the chunks")
+            _refuse_summary(p, n, bad)
     return rows
+
+
+def _refuse_summary(p: Path, line: int, what: str):
+    raise StoreError(f"{p}: line {line}: {what} (edited, swapped or of another run); delete "
+                     f"it and run "
+                     f"`hlip-sweep report` again to rewrite it from the chunks")
 
 
 def _result_mismatch(row: dict, stored: dict[int, dict]) -> str:
@@ -595,11 +651,15 @@ def _read_csv(p: Path) -> list[dict]:
 def _read_csv_table(p: Path) -> tuple[list[str], list[dict]]:
     """(the header, the rows as dicts with numbers parsed where they parse) of a CSV file."""
     rows = []
-    with open(p, newline="", encoding="utf-8") as fh:
+    # utf-8-sig: a byte-order mark (a spreadsheet's save) is not part of the first column name
+    with open(p, newline="", encoding="utf-8-sig") as fh:
         reader = csv.DictReader(fh)
         for r in reader:
             out = {}
             for k, v in r.items():
+                if not isinstance(v, str):      # a short row (None) or extra cells (a list)
+                    out[k] = v
+                    continue
                 try:
                     out[k] = int(v)
                 except ValueError:
@@ -830,7 +890,8 @@ def results_lock(out: Path):
     except OSError as err:
         raise StoreError(f"--out {out}: cannot create the results directory: "
                          f"{err.strerror or err}") from None
-    inside(out, LOCK)
+    for name in (LOCK, CHUNK_DIR, TICK_DIR):
+        inside(out, name)           # never written through a link out of the directory
     made_lock = not (out / LOCK).exists()
     try:
         fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666)

@@ -283,3 +283,110 @@ def test_a_run_into_a_read_only_directory_loses_nothing(tmp_path, tiny_sweep, ca
     _run_ok(capsys, tiny_sweep, out, "--resume")
     for i in range(4):
         assert store.chunk_path(out, i).read_bytes() == store.chunk_path(ref, i).read_bytes()
+
+
+# ------------------------------------------------------------------------------------------
+# the fourth hostile round
+
+
+def test_a_file_named_like_a_chunk_that_is_none_of_the_runs_is_refused(tmp_path, done, tiny_sweep,
+                                                                       capsys):
+    """A copy of a chunk as chunks/chunk_00099.npz (or a chunk renamed chunk_1.npz) was read
+    by every reader of chunks/: the report showed its scenarios, and a chunk of another run
+    holding scenario 0 replaced scenario 0's summary row.  report, the summary and the end of
+    a --resume now name the stray file and say to remove it."""
+    stray = done / "chunks" / "chunk_00099.npz"
+    stray.write_bytes(store.chunk_path(done, 0).read_bytes())
+    (done / "summary.csv").unlink()
+    code, _, err = cli(capsys, "report", done)
+    line = _one_line_error(code, err)
+    assert "chunk_00099.npz: not a chunk of this run (4 chunks" in line and "remove it" in line
+    with pytest.raises(store.StoreError, match="chunk_00099.npz: not a chunk"):
+        store.write_summary(done)
+    store.chunk_path(done, 3).unlink()
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", done, "--batch", "1", "--no-report",
+                       "--quiet", "--resume")
+    assert "chunk_00099.npz: not a chunk of this run" in _one_line_error(code, err)
+    assert not (done / "summary.csv").exists()
+    stray.rename(done / "chunks" / "chunk_1.npz")
+    code, _, err = cli(capsys, "coverage", done)
+    assert "chunk_1.npz: not a chunk of this run" in _one_line_error(code, err)
+    (done / "chunks" / "chunk_1.npz").unlink()
+    code, _, err = cli(capsys, "report", done)
+    assert code == 0, err
+
+
+def test_a_chunks_folder_that_is_a_link_is_refused(tmp_path, done, tiny_sweep, capsys):
+    """chunks/ a symbolic link to another run's chunks/: --resume wrote its new chunk into the
+    other run's directory (a write outside --out) and report read the other run's chunks; both
+    now refuse the link in one line, the other directory untouched."""
+    other = tmp_path / "other"
+    _run_ok(capsys, tiny_sweep, other)
+    store.chunk_path(other, 3).unlink()
+    before = _files(other)
+    import shutil
+    shutil.rmtree(done / "chunks")
+    (done / "chunks").symlink_to(other / "chunks")
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", done, "--batch", "1", "--no-report",
+                       "--quiet", "--resume")
+    line = _one_line_error(code, err)
+    assert "chunks: a symbolic link inside the results directory" in line
+    code, _, err = cli(capsys, "report", done)
+    assert "chunks: a symbolic link" in _one_line_error(code, err)
+    assert _files(other) == before
+
+
+def test_a_manifest_without_a_run_id_does_not_mix_runs(tmp_path, done, capsys):
+    """With config_hash deleted from the manifest, a chunk of another run (another duration)
+    was reported with the others, exit 0; the chunks are now checked against the first
+    chunk's run id."""
+    import json
+    other = tmp_path / "other"
+    sw = tmp_path / "longer.toml"
+    sw.write_text(TINY.replace("duration = 4.0", "duration = 5.0"))
+    _run_ok(capsys, sw, other)
+    man = json.loads((done / "manifest.json").read_text())
+    del man["config_hash"]
+    (done / "manifest.json").write_text(json.dumps(man))
+    (done / "summary.csv").unlink()
+    code, _, err = cli(capsys, "report", done)                  # one run: accepted
+    assert code == 0, err
+    (done / "summary.csv").unlink()
+    store.chunk_path(done, 2).write_bytes(store.chunk_path(other, 2).read_bytes())
+    code, _, err = cli(capsys, "report", done)
+    assert "chunk_00002.npz: was written by another run" in _one_line_error(code, err)
+
+
+@pytest.mark.parametrize("damage,expect", [
+    (lambda t: t + b"\xff\xfe", "unreadable ('utf-8' codec"),                   # not UTF-8
+    (lambda t: t.split(b"\n", 1)[0] + b"," + b"y" * 200_000 + b"\n" + t.split(b"\n", 1)[1],
+     "unreadable (field larger than field limit"),
+    (lambda t: t.replace(b"\n", b",notes\n", 1), "line 1: column 'notes' is not a summary column"),
+    (lambda t: t.replace(b"\n", b",extra,cells\n", 2).replace(b",extra,cells\n", b"\n", 1),
+     "line 2: 41 cells for the header's 39 columns"),
+    (lambda t: t + b"0,short\n", "line 6: 2 cells for the header's 39 columns"),
+])
+def test_a_damaged_summary_is_one_line(done, capsys, damage, expect):
+    """summary.csv not UTF-8, with a field over the csv module's limit, a row with more or
+    fewer cells than the header, or a column the summary does not have: tracebacks
+    (UnicodeDecodeError, csv.Error, TypeError) or a user's column shown as a result; now one
+    line naming the file and what is wrong, and saying to delete it."""
+    p = done / "summary.csv"
+    p.write_bytes(damage(p.read_bytes()))
+    code, _, err = cli(capsys, "report", done)
+    line = _one_line_error(code, err)
+    assert "summary.csv: " in line and expect in line and "delete it" in line, line
+
+
+def test_a_summary_saved_with_a_byte_order_mark_reads_as_written(done, capsys):
+    p = done / "summary.csv"
+    p.write_bytes(b"\xef\xbb\xbf" + p.read_bytes())
+    assert [r["index"] for r in store.read_summary(done)] == [0, 1, 2, 3]
+
+
+def test_a_manifest_that_is_not_a_regular_file_is_named_as_such(done, capsys):
+    """A FIFO as manifest.json was reported as 'no manifest.json'."""
+    (done / "manifest.json").unlink()
+    os.mkfifo(done / "manifest.json")
+    code, _, err = cli(capsys, "report", done)
+    assert "manifest.json: not a manifest (a regular file" in _one_line_error(code, err)
