@@ -32,6 +32,7 @@ H-representation filled in: :func:`zonotope`, :func:`convex_hull`; vertices of a
 
 from __future__ import annotations
 
+import functools
 import itertools
 from functools import partial
 from typing import Any, NamedTuple, Optional
@@ -90,12 +91,17 @@ class Zonotope(NamedTuple):
     of the size), with Z₀'s half-widths.  Membership of many points then runs in two exact
     passes: F₀ facets decide most points (outside Z if a facet of Z is violated, inside if in
     Z₀ ⊆ Z); only the band Z ∖ Z₀ gets the full facet test.
+
+    ``known_volume``, optional: the volume where the construction knows it in closed form (a
+    truncated sum of a box, :func:`truncated_sum`); else :meth:`volume` sums the generators'
+    determinants.
     """
     center: Any
     generators: Any
     normals: Any = None
     offsets: Any = None
     prefix_offsets: Any = None
+    known_volume: Any = None
 
     @property
     def dim(self) -> int:
@@ -119,7 +125,7 @@ class Zonotope(NamedTuple):
 
     def volume(self):
         """2ⁿ Σ_{|S|=n} |det G_S| over all n-subsets S of the generators (exact)."""
-        return _zono_volume(self)
+        return _zono_volume(self) if self.known_volume is None else self.known_volume
 
 
 class Hull(NamedTuple):
@@ -490,6 +496,15 @@ def _unique_directions(N: np.ndarray, decimals: int = 10) -> np.ndarray:
     return N[np.sort(idx)]
 
 
+def significant_generators(G: np.ndarray) -> np.ndarray:
+    """Mask (m,) of the generators that count for the facets: norm above 1e-14 × the largest
+    (a term A^i W that has decayed to round-off adds no facet direction)."""
+    gn = np.linalg.norm(G, axis=1)
+    if not G.shape[0] or not gn.max() > 0:
+        return np.zeros(G.shape[0], bool)
+    return gn > 1e-14 * gn.max()
+
+
 def zonotope_normals(generators, parallel_rtol: float = 1e-12) -> np.ndarray:
     """Facet normal candidates (unit rows, each direction once; use ± both) of a zonotope.
 
@@ -497,13 +512,14 @@ def zonotope_normals(generators, parallel_rtol: float = 1e-12) -> np.ndarray:
     non-parallel pair (|g_i × g_j| > parallel_rtol |g_i||g_j|).  Degenerate (rank-deficient)
     generator sets are completed by an orthonormal basis of the missing directions, treated as
     extra generators for normal finding only, so flat sets get both their in-plane facets and
-    the pair of bounding planes.
+    the pair of bounding planes.  Generators below :func:`significant_generators` are left out.
     """
     G = as_float64(generators)
-    n = G.shape[1]
-    gn = np.linalg.norm(G, axis=1)
-    if G.shape[0]:
-        G = G[gn > 1e-14 * gn.max()] if gn.max() > 0 else G[:0]
+    return _normals_of(G[significant_generators(G)], G.shape[1], parallel_rtol)
+
+
+def _normals_of(G: np.ndarray, n: int, parallel_rtol: float = 1e-12) -> np.ndarray:
+    """:func:`zonotope_normals` of generators already filtered (rows of G, (m, n))."""
     cand = np.concatenate([G, _null_basis(G, n)], axis=0)
     if n == 1:
         return np.ones((1, 1))
@@ -528,12 +544,19 @@ def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
     """
     c = as_float64(z.center)
     G = as_float64(z.generators).reshape(-1, c.shape[0])
+    N, n0 = _facet_normals(G, n_prefix)
+    h, h0 = _facet_widths(N, G, n0, n_prefix)
+    return Zonotope(c, G, N, h, h0)
+
+
+def _facet_normals(G: np.ndarray, n_prefix: int) -> tuple[np.ndarray, int]:
+    """(N, n0): the facet normals of the zonotope of G, the complete facet set of its first
+    ``n_prefix`` generators first (n0 rows; 0 without a prefix)."""
     N, n0 = zonotope_normals(G), 0
     if 0 < n_prefix < G.shape[0]:
         N0 = zonotope_normals(G[:n_prefix])
         N, n0 = _unique_directions(np.concatenate([N0, N])), len(N0)  # keeps N0 first, in order
-    h, h0 = _facet_widths(N, G, n0, n_prefix)
-    return Zonotope(c, G, N, h, h0)
+    return N, n0
 
 
 _WIDTH_ROWS = 2048   # facet rows per block of |N Gᵀ| (2048 × 400 generators: 6.5 MB)
@@ -734,13 +757,92 @@ def truncated_sum(A_cl, W, s: int, center=None, n_prefix_terms: int = 0):
             cs = cs + Ai @ c
             gs.append(G @ Ai.T)
             Ai = A @ Ai
-        return zonotope(cs if center is None else center, np.concatenate(gs),
-                        n_prefix=n_prefix_terms * G.shape[0])
+        cs = cs if center is None else as_float64(center)
+        if _is_box(G):
+            return _box_sum(A, np.diag(G).copy(), cs, np.concatenate(gs), s, n_prefix_terms)
+        return zonotope(cs, np.concatenate(gs), n_prefix=n_prefix_terms * G.shape[0])
     if isinstance(W, Hull):
         V = as_float64(W.canonical().vertices)
         A = as_float64(A_cl).reshape(V.shape[1], V.shape[1])
         return convex_hull(_minkowski_power_sum(A, V, s))
     raise TypeError(f"W: Box, Zonotope or Hull expected, got {type(W).__name__}")
+
+
+def _is_box(G: np.ndarray) -> bool:
+    """Whether generators G (m, n) are those of an axis-aligned box: diag(r), r > 0."""
+    return (G.ndim == 2 and G.shape[0] == G.shape[1] and 1 <= G.shape[0] <= 3
+            and np.all(np.diag(G) > 0) and not np.any(G - np.diag(np.diag(G))))
+
+
+def _box_sum(A: np.ndarray, r: np.ndarray, c: np.ndarray, G: np.ndarray, s: int,
+             n_prefix_terms: int) -> Zonotope:
+    """F_s = c + ⊕_{i<s} A^i diag(r) B_∞ with its exact facets, G its generators (s·n, n).
+
+    Its generators are r_j A^i e_j: positive multiples of the unit generators u_{ij} = A^i e_j,
+    so the facet normals are those of the u_{ij} (the same for every box) and each half-width
+    is linear in r, h_f = Σ_j r_j Σ_i |N_f · A^i e_j| = (H r)_f.  N and H are formed once per
+    (A, s, prefix, generators left out) (:func:`_box_sum_facets`); a sweep's scenarios share
+    A + BK, so the per-scenario cost is H r instead of |N Gᵀ| (equal up to the order of the sums)."""
+    n = len(r)
+    n_prefix = n_prefix_terms * n
+    keep = significant_generators(G)
+    keep0 = significant_generators(G[:n_prefix]) if 0 < n_prefix < G.shape[0] else keep[:0]
+    N, H, H0, T = _box_sum_facets(A.tobytes(), n, s, n_prefix, keep.tobytes(), keep0.tobytes())
+    rr = functools.reduce(np.multiply.outer, [r] * n)          # r_a r_b … over label tuples
+    return Zonotope(c, G, N, H @ r, None if H0 is None else H0 @ r,
+                    np.float64(2.0 ** n * np.sum(T * rr)))
+
+
+@functools.lru_cache(maxsize=64)
+def _box_sum_facets(A_bytes: bytes, n: int, s: int, n_prefix: int, keep: bytes, keep0: bytes):
+    """(N, H, H0) of :func:`_box_sum` for A (its bytes, n × n), s terms, a prefix of
+    ``n_prefix`` generators and the masks of the generators that count (bytes of bool)."""
+    A = np.frombuffer(A_bytes, np.float64).reshape(n, n)
+    U, Ai = [], np.eye(n)
+    for _ in range(s):
+        U.append(Ai.T)                       # rows: (A^i e_j)ᵀ, in truncated_sum's order
+        Ai = A @ Ai
+    U = np.concatenate(U)
+    keep, keep0 = np.frombuffer(keep, bool), np.frombuffer(keep0, bool)
+    N, n0 = _normals_of(U[keep], n), 0
+    if len(keep0):
+        N0 = _normals_of(U[:n_prefix][keep0], n)
+        N, n0 = _unique_directions(np.concatenate([N0, N])), len(N0)
+    P = np.abs(N @ U.T)                       # (F, s·n): |N_f · u_ij|
+    H = P.reshape(len(N), s, n).sum(axis=1)
+    H0 = P[:n0, :n_prefix].reshape(n0, -1, n).sum(axis=1) if n0 else None
+    T = _determinant_sums(U, np.tile(np.arange(n), s), n)
+    for a in (N, H, T) + ((H0,) if n0 else ()):
+        a.setflags(write=False)
+    return N, H, H0, T
+
+
+def box_sum_cache_info():
+    """Hits and misses of the per-(A, s) facet templates of :func:`truncated_sum`'s box path."""
+    return _box_sum_facets.cache_info()
+
+
+def _determinant_sums(U: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
+    """T (n,)*n: T[a, b, …] = Σ |det[u_i, u_j, …]| over the n-subsets i < j < … of the rows of
+    U (m, n) whose labels are a, b, … in that order.  The zonotope of generators r_{l_i} u_i
+    then has volume 2ⁿ Σ T[a, b, …] r_a r_b … (the determinant is multilinear and r > 0):
+    :func:`_zono_volume`'s sum, grouped by label once per U."""
+    T = np.zeros((n,) * n)
+    m = len(U)
+    if m < n:
+        return T
+    if n == 1:
+        np.add.at(T, labels, np.abs(U[:, 0]))
+    elif n == 2:
+        i, j = np.triu_indices(m, k=1)
+        np.add.at(T, (labels[i], labels[j]), np.abs(U[i, 0] * U[j, 1] - U[i, 1] * U[j, 0]))
+    else:
+        L = np.eye(n)[labels]                                     # (m, n) one-hot labels
+        for i in range(m - 2):
+            C = np.cross(U[i], U[i + 1:])                         # g_i × g_j, j > i
+            D = np.triu(np.abs(C @ U[i + 1:].T), 1)               # |(g_i × g_j) · g_k|, k > j
+            T[labels[i]] += L[i + 1:].T @ D @ L[i + 1:]
+    return T
 
 
 def _minkowski_power_sum(A: np.ndarray, V: np.ndarray, s: int) -> np.ndarray:
@@ -874,7 +976,8 @@ def _mrpi_zonotope(A_cl, W: Zonotope, eps, s_max, nil_tol) -> MRPI:
         k = 1.0 / (1.0 - a)
         scaled = lambda v: None if v is None else as_float64(v) * k
         outer = Zonotope(inner.center, scaled(inner.generators), inner.normals,
-                         scaled(inner.offsets), scaled(inner.prefix_offsets))
+                         scaled(inner.offsets), scaled(inner.prefix_offsets),
+                         None if inner.known_volume is None else inner.known_volume * k ** n)
     return MRPI(inner, outer, int(s), float(a), float(eps), bool(exact))
 
 
