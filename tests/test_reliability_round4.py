@@ -84,7 +84,8 @@ def test_the_cli_refuses_a_bad_device_count_in_one_line(monkeypatch, capsys):
 
 
 @pytest.mark.parametrize("column,value", [("status", "fell"), ("final_pos_err", "0.001"),
-                                          ("fail_step", "7"), ("steps", "99")])
+                                          ("fail_step", "7"), ("steps", "99"),
+                                          ("status", "ok\x1b[2J")])
 def test_a_summary_with_edited_result_cells_is_refused(done, capsys, column, value):
     """A hand-edited status or metric cell of summary.csv was reported as written: the report
     now checks every result cell against the chunks and refuses a summary that differs, naming
@@ -96,7 +97,7 @@ def test_a_summary_with_edited_result_cells_is_refused(done, capsys, column, val
     code, _, err = cli(capsys, "report", done)
     line = _one_line_error(code, err)
     assert f"summary.csv: line 3: column {column!r} of scenario 1 is" in line
-    assert "the chunks say" in line and "delete it" in line
+    assert "the chunks say" in line and "delete it" in line and "\x1b" not in line
     assert not (done / "report.md").exists()
     p.unlink()
     code, _, err = cli(capsys, "report", done)
@@ -333,6 +334,13 @@ def test_a_chunks_folder_that_is_a_link_is_refused(tmp_path, done, tiny_sweep, c
     assert "chunks: a symbolic link inside the results directory" in line
     code, _, err = cli(capsys, "report", done)
     assert "chunks: a symbolic link" in _one_line_error(code, err)
+    assert _files(other) == before
+    (done / "chunks").unlink()
+    shutil.copytree(other / "chunks", done / "chunks")
+    (done / "ticks").symlink_to(other, target_is_directory=True)   # per-tick logs go there
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", done, "--batch", "1", "--no-report",
+                       "--quiet", "--resume")
+    assert "ticks: a symbolic link" in _one_line_error(code, err)
     assert _files(other) == before
 
 
