@@ -25,6 +25,13 @@ chunk size) to match; finished chunks are skipped after a full check (:func:`chu
 every array read, so every CRC-32 checked, every field present, every shape and the ``index``
 right); a bad chunk is named and simulated again.
 
+Readers trust only what the run wrote: chunk files must be regular files named for one of the
+run's chunks (a symbolic link, a FIFO, a ``chunks/`` folder that is a link or a stray
+``chunk_*.npz`` is refused, :func:`check_chunks`), and ``summary.csv`` must agree with the
+manifest (scenario cells) and with the chunks (status, fail step and metric cells,
+:func:`read_summary`); a summary that does not is refused, naming its line and column, and is
+rewritten from the chunks once deleted.
+
 A run holds ``DIR/.lock`` (:func:`results_lock`, an ``flock`` naming the holder's pid) from
 start to end, so a second run into the same directory fails at once; files are created with
 the permissions the umask gives.  A run that finishes with a negative ``min_clearance`` has the
