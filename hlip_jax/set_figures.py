@@ -17,6 +17,16 @@ def _split_inside(E, samples, tol=1e-9):
     return P, inside
 
 
+def _hull(V):
+    """scipy's ConvexHull of the points V, with joggled input where Qhull's exact merging fails
+    on nearly coplanar points (a picture, so a 1e-11 relative joggle is invisible)."""
+    from scipy.spatial import ConvexHull, QhullError
+    try:
+        return ConvexHull(V)
+    except QhullError:
+        return ConvexHull(V, qhull_options="QJ")
+
+
 def plot_set_3d(E, samples=None, ax=None, face_color="tab:blue", inside_color="tab:green",
                 outside_color="tab:red", alpha: float = 0.15, labels=None):
     """E (3-D) as transparent polytope faces with samples (k, 3): inside / outside coloured."""
@@ -24,12 +34,11 @@ def plot_set_3d(E, samples=None, ax=None, face_color="tab:blue", inside_color="t
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-    from scipy.spatial import ConvexHull
 
     if ax is None:
         ax = plt.figure().add_subplot(projection="3d")
     V = vertices(E)
-    hull = ConvexHull(V)
+    hull = _hull(V)
     faces = [V[t] for t in hull.simplices]
     ax.add_collection3d(Poly3DCollection(faces, facecolor=face_color, alpha=alpha,
                                          edgecolor="none"))
@@ -57,12 +66,11 @@ def plot_set_2d(E, samples=None, dims=(0, 1), ax=None, face_color="tab:blue",
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from scipy.spatial import ConvexHull
 
     if ax is None:
         ax = plt.figure().add_subplot()
     V = vertices(E)[:, list(dims)]
-    poly = V[ConvexHull(V).vertices]
+    poly = V[_hull(V).vertices]
     ax.fill(*poly.T, color=face_color, alpha=alpha, lw=1)
     if samples is not None:
         P, inside = _split_inside(E, samples)

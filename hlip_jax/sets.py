@@ -664,16 +664,23 @@ def halfspace_vertices(normals, offsets, interior) -> np.ndarray:
     ``interior`` (n,) is a point strictly inside (N x < b), e.g. a zonotope's centre.  In 1-D
     the polytope is the interval [max_{N_f < 0} b_f / N_f, min_{N_f > 0} b_f / N_f]; in more
     dimensions the vertices are the intersections of the facets (scipy's HalfspaceIntersection,
-    eager, float64; non-finite intersections dropped)."""
+    eager, float64; non-finite intersections dropped; with joggled input where Qhull's exact
+    merging fails)."""
     N, b = as_float64(normals), as_float64(offsets)
     if N.shape[1] == 1:
         up = b[N[:, 0] > 0] / N[N[:, 0] > 0, 0]
         dn = b[N[:, 0] < 0] / N[N[:, 0] < 0, 0]
         return np.array([[dn.max()], [up.min()]])
-    from scipy.spatial import HalfspaceIntersection
+    from scipy.spatial import HalfspaceIntersection, QhullError
 
-    hs = HalfspaceIntersection(np.concatenate([N, -b[:, None]], axis=1), as_float64(interior))
-    V = hs.intersections
+    H = np.concatenate([N, -b[:, None]], axis=1)
+    try:
+        V = HalfspaceIntersection(H, as_float64(interior)).intersections
+    except QhullError:
+        # thousands of nearly parallel facets (a slow mode of A + BK) can defeat Qhull's
+        # merging ("wide merge error"); joggled input always triangulates, each vertex then off
+        # by about 1e-11 of the set's size
+        V = HalfspaceIntersection(H, as_float64(interior), qhull_options="QJ").intersections
     return V[np.all(np.isfinite(V), axis=1)]
 
 

@@ -80,3 +80,23 @@ def test_the_template_is_shared_across_boxes():
     out = sets.truncated_sum(A, sets.Box(-np.array([1.0, 2.0, 3.0]), np.array([1.0, 2.0, 3.0])), 9)
     assert sets.box_sum_cache_info().misses == before
     assert np.all(out.offsets > 0)
+
+
+def test_vertices_survive_a_qhull_merge_failure(monkeypatch):
+    # Qhull's exact merging can fail on thousands of nearly parallel facets (a report crashed
+    # with "wide merge error" on a 1024-run GPU sweep); the vertices then come from joggled
+    # input: their hull's volume is the zonotope's within 1e-9 (relative)
+    import scipy.spatial
+
+    real = scipy.spatial.HalfspaceIntersection
+
+    def strict(halfspaces, interior, qhull_options=None, **kw):
+        if qhull_options is None:
+            raise scipy.spatial.QhullError("QH6271 qhull topology error (wide merge)")
+        return real(halfspaces, interior, qhull_options=qhull_options, **kw)
+
+    monkeypatch.setattr(scipy.spatial, "HalfspaceIntersection", strict)
+    z = sets.zonotope(np.zeros(3), np.random.default_rng(3).normal(size=(10, 3)))
+    V = sets.vertices(z)
+    assert scipy.spatial.ConvexHull(V).volume == pytest.approx(z.volume(), rel=1e-9)
+    assert np.all(np.asarray(z.contains(V, 1e-9)))
