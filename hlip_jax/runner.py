@@ -251,15 +251,15 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
     man = dict(old) if old else _new_manifest(sw, configs, batch, len(ranges), chash,
                                               with_coverage)
     man["impl"] = resolved._asdict()
-    man.update({"versions": store._versions(), "jax": store._jax_info(), "git_commit": store._git_commit(),
-                "start_time": man.get("start_time") or store._now(), "end_time": None,
+    man.update({"versions": store.package_versions(), "jax": store.jax_info(), "git_commit": store.git_commit(),
+                "start_time": man.get("start_time") or store.utc_now(), "end_time": None,
                 "status": "running"})
     man.setdefault("resumed_at", [])
     if old:
-        man["resumed_at"].append(store._now())
+        man["resumed_at"].append(store.utc_now())
     try:
         (out / store.CHUNK_DIR).mkdir(parents=True, exist_ok=True)
-        store._write_manifest(out, man)
+        store.write_manifest(out, man)
     except OSError as err:
         raise store.StoreError(f"--out {out}: cannot write the results directory: "
                          f"{err.strerror or err}") from None
@@ -275,15 +275,15 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
                                          with_coverage, good, chash, sw.analysis.warmup)
     except BaseException:
         # interrupted or failed: finished chunks stay; the manifest says the run is incomplete
-        man.update(status="incomplete", end_time=store._now(),
+        man.update(status="incomplete", end_time=store.utc_now(),
                    seconds=man.get("seconds", 0.0) + (time.monotonic() - t0))
         with contextlib.suppress(OSError):    # e.g. the disk is full: the first error counts
-            store._write_manifest(out, man)
+            store.write_manifest(out, man)
         raise
     complete = len(good) == len(ranges)
-    man.update(status="complete" if complete else "incomplete", end_time=store._now(),
+    man.update(status="complete" if complete else "incomplete", end_time=store.utc_now(),
                seconds=man.get("seconds", 0.0) + (time.monotonic() - t0))
-    store._write_manifest(out, man)
+    store.write_manifest(out, man)
     if complete:
         with on_host():
             store.write_summary(out)
@@ -389,7 +389,7 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
             plants = sorted({c.plant for c in chunk_cfgs})
             raise store.StoreError(f"the closed loop for plant {', '.join(plants)} is not available: "
                              f"{type(err).__name__}: {err}") from None
-        arrays = store._log_to_arrays(log, b - a)
+        arrays = store.log_to_arrays(log, b - a)
         arrays["index"] = np.arange(a, b, dtype=np.int64)
         arrays[store.RUN_ID] = np.full(b - a, run_id)
         mets = chunk_metrics(arrays, [metrics.push_windows(c) for c in chunk_cfgs[:b - a]],

@@ -136,7 +136,8 @@ def save_npz_atomic(path, arrays: dict) -> None:
 # manifest
 
 
-def _versions() -> dict:
+def package_versions() -> dict:
+    """{package: version} of Python and the libraries whose versions a manifest records."""
     out = {"python": platform.python_version()}
     for pkg in ("hlip_jax", "jax", "jaxlib", "numpy", "scipy", "mujoco", "mujoco-mjx", "osqp",
                 "matplotlib"):
@@ -147,7 +148,9 @@ def _versions() -> dict:
     return out
 
 
-def _jax_info() -> dict:
+def jax_info() -> dict:
+    """The JAX backend, devices and precision a manifest records (the error where JAX
+    cannot start)."""
     try:
         import jax
         return {"backend": jax.default_backend(),
@@ -157,7 +160,8 @@ def _jax_info() -> dict:
         return {"backend": "unavailable", "error": str(err)}
 
 
-def _git_commit() -> str | None:
+def git_commit() -> str | None:
+    """The checkout's commit hash, or None outside a git checkout."""
     here = Path(__file__).resolve().parent
     try:
         r = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True,
@@ -172,7 +176,8 @@ def _git_commit() -> str | None:
         return None
 
 
-def _now() -> str:
+def utc_now() -> str:
+    """The time now in UTC, ISO 8601 to the second (the manifest's time stamps)."""
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 
 
@@ -235,7 +240,8 @@ def _manifest_problem(man) -> str | None:
     return None
 
 
-def _write_manifest(out_dir, man: dict) -> None:
+def write_manifest(out_dir, man: dict) -> None:
+    """Write ``man`` as DIR/manifest.json atomically (a reader never sees half a file)."""
     # indented for reading; compact for large sweeps (the configs dominate its size)
     indent = 1 if len(man.get("configs", ())) <= 1000 else None
     write_atomic(Path(out_dir) / MANIFEST, json.dumps(man, indent=indent) + "\n")
@@ -405,7 +411,7 @@ def _run_id_of(path) -> str | None:
         return None
 
 
-def _log_to_arrays(log, n: int) -> dict[str, np.ndarray]:
+def log_to_arrays(log, n: int) -> dict[str, np.ndarray]:
     """Log NamedTuple (or dict) → dict of numpy arrays, first ``n`` scenarios."""
     d = log._asdict() if hasattr(log, "_asdict") else dict(log)
     out = {}
@@ -913,7 +919,7 @@ def results_lock(out: Path):
             raise StoreError(f"--out {out}: another run is writing this directory ({holder}); "
                              f"wait for it to finish or choose another --out") from None
         os.ftruncate(fd, 0)
-        os.pwrite(fd, f"pid {os.getpid()} on {platform.node()} since {_now()}\n".encode(), 0)
+        os.pwrite(fd, f"pid {os.getpid()} on {platform.node()} since {utc_now()}\n".encode(), 0)
         try:
             yield out
         except BaseException:

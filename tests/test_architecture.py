@@ -24,16 +24,7 @@ from pathlib import Path
 PACKAGE = "hlip_jax"
 ROOT = Path(__file__).resolve().parents[1] / PACKAGE
 
-# Still open (issue #53, "no private names across modules"): the runner writes the manifest
-# with the store's helpers.  Each leaves once store.py names it publicly.
-ALLOWED_PRIVATE = {
-    ("hlip_jax.runner", "hlip_jax.store", "_git_commit"),
-    ("hlip_jax.runner", "hlip_jax.store", "_jax_info"),
-    ("hlip_jax.runner", "hlip_jax.store", "_log_to_arrays"),
-    ("hlip_jax.runner", "hlip_jax.store", "_now"),
-    ("hlip_jax.runner", "hlip_jax.store", "_versions"),
-    ("hlip_jax.runner", "hlip_jax.store", "_write_manifest"),
-}
+ALLOWED_PRIVATE: set = set()
 
 # Still open (issue #53, "config <-> plants"): config imports the Cassie gaits
 # (plants.cassie.gaits) and the plants import config.  Leaves when the plant owns its config.

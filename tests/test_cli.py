@@ -383,7 +383,7 @@ def test_disk_full_at_the_start(tmp_path, tiny_sweep, capsys, fake_loop, monkeyp
     def full(out_dir, man):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(store, "_write_manifest", full)
+    monkeypatch.setattr(store, "write_manifest", full)
     code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o", "--quiet")
     assert "No space left" in _one_line_error(code, err)
 

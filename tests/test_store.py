@@ -446,7 +446,7 @@ def test_chunk_metrics_in_worker_processes_equal_one_process():
     chunk needs minutes of mRPI sets on one core); the rows must be those of one process,
     in scenario order, bit for bit (same float64 code; NaN where a metric is undefined)."""
     cfgs = list(_tiny().scenarios)
-    arrays = store._log_to_arrays(fake_simulate(cfgs), len(cfgs))
+    arrays = store.log_to_arrays(fake_simulate(cfgs), len(cfgs))
     pushes = [metrics.push_windows(c) for c in cfgs]
     one = runner.chunk_metrics(arrays, pushes, True, workers=1)
     two = runner.chunk_metrics(arrays, pushes, True, workers=3)
@@ -470,7 +470,7 @@ def test_chunk_metrics_fall_back_to_this_process_without_workers(monkeypatch):
             raise OSError("no processes here")
 
     cfgs = list(_tiny().scenarios)[:4]
-    arrays = store._log_to_arrays(fake_simulate(cfgs), len(cfgs))
+    arrays = store.log_to_arrays(fake_simulate(cfgs), len(cfgs))
     pushes = [metrics.push_windows(c) for c in cfgs]
     one = runner.chunk_metrics(arrays, pushes, False, workers=1)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", NoPool)
