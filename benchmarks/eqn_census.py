@@ -11,7 +11,7 @@ by JAX's own jitted helpers, such as ``jnp`` indexing)::
 
 ``--no-physics`` replaces the physics step by a function that only sets the motor torques,
 leaving what the controller, the step's end and the MPC add: with Warp physics
-(``cassie.physics = "warp"``) the physics is one foreign call XLA does not compile, so this
+(``impl.physics = "warp"``) the physics is one foreign call XLA does not compile, so this
 is the part of the program XLA compiles (Warp itself needs a GPU).
 """
 

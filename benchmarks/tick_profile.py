@@ -10,7 +10,7 @@ Stages (the CLF-QP tick of :mod:`hlip_jax.plants.cassie.control`, the walking ti
     admm       qp.solve of that QP (the standing controller's ADMM settings), warm-started
                from the previous tick's solution and cold, with the linear system solved by
                the Cholesky factor in every iteration or by its inverse formed once per
-               factorisation (``qp.Settings.linsys``, ``cassie.qp_linsys``)
+               factorisation (``qp.Settings.linsys``, ``impl.qp_linsys``)
     physics    control.physics: the two MJX steps of a tick (MJX-JAX)
     physics (warp)  the same two steps on MJX's Warp implementation (where warp-lang is installed)
     tick       all of the above in one program (terms → condense → build → solve → physics);
@@ -18,7 +18,7 @@ Stages (the CLF-QP tick of :mod:`hlip_jax.plants.cassie.control`, the walking ti
                and the Warp physics
 
 ``--terms`` and ``--condense`` choose how every stage computes the whole-body terms
-(``cassie.terms``: mjx, dense) and the constraint forces (``cassie.condense``: eigen, deflated).
+(``impl.terms``: mjx, dense) and the constraint forces (``impl.condense``: eigen, deflated).
 
 Each stage is one jitted, vmapped program over ``B`` robots at the same state (the stand
 keyframe after 0.2 s of standing, all four contact sites closed), timed as the best of
@@ -140,9 +140,9 @@ def main(argv=None) -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--stages", nargs="+", default=None, help="only these stages")
     ap.add_argument("--terms", default="mjx", choices=model.TERMS,
-                    help="whole-body terms of every stage (cassie.terms)")
+                    help="whole-body terms of every stage (impl.terms)")
     ap.add_argument("--condense", default="eigen", choices=dynamics.SOLVES,
-                    help="the condensation's solve in every stage (cassie.condense)")
+                    help="the condensation's solve in every stage (impl.condense)")
     args = ap.parse_args(argv)
     c = control.load()
     dev = jax.devices()[0]

@@ -5,9 +5,9 @@ of straight-line scenarios (0, 0.2, 0.4, 0.6 m/s, the default gait), against phy
 always, and MJX's Warp implementation too when Warp physics is among the benchmarked ones
 (the engine such a sweep runs), each with its own ratio.
 
-Per batch size, device count, CLF-QP loop (``cassie.qp_loop``: the ADMM blocks in a while
+Per batch size, device count, CLF-QP loop (``impl.qp_loop``: the ADMM blocks in a while
 loop that stops when the batch has converged, or in a loop of static trip count that runs the
-whole budget; the same torques either way) and physics implementation (``cassie.physics``:
+whole budget; the same torques either way) and physics implementation (``impl.physics``:
 MJX-JAX or MJX's Warp): compile + first run [s], timed run [s], simulated
 robot-seconds per wall-second, physics steps per second in the loop (2 per 1 kHz control tick,
 only the ticks that simulate), the physics-only rate on one device and the ratio, the fraction
@@ -34,18 +34,19 @@ def configs(n: int, duration: float, qp_max_iter: int | None = None, qp_loop: st
     """n straight-line Cassie scenarios, speeds cycling through SPEEDS, with the default walk
     of docs/cassie_gait.md (the default gait preset's H-LIP timing and 3-state LQR stepping
     gain), the CLF-QP loop ``qp_loop``, its linear solve ``qp_linsys``, its iterations' kernel
-    ``qp_kernel`` and the physics implementation ``physics`` (``CassieConfig.qp_loop``,
+    ``qp_kernel`` and the physics implementation ``physics`` (``ImplConfig.qp_loop``,
     ``qp_linsys``, ``qp_kernel``, ``physics``), the CLF-QP's starting step size
     ``qp_rho_start`` (``CassieConfig.qp_rho_start``), the condensation's solve ``condense``
-    (``CassieConfig.condense``) and the whole-body terms ``terms`` (``CassieConfig.terms``)."""
-    from hlip_jax.config import CassieConfig, GainConfig, HLIPConfig, PathConfig, ScenarioConfig
+    (``ImplConfig.condense``) and the whole-body terms ``terms`` (``ImplConfig.terms``)."""
+    from hlip_jax.config import (CassieConfig, GainConfig, HLIPConfig, ImplConfig, PathConfig,
+                                 ScenarioConfig)
     from hlip_jax.plants.cassie import gaits
     W = gaits.preset(gaits.DEFAULT)
     budget = {} if qp_max_iter is None else {"qp_max_iter": qp_max_iter}
-    cassie = CassieConfig(qp_loop=qp_loop, physics=physics, qp_linsys=qp_linsys,
-                          qp_rho_start=qp_rho_start, qp_kernel=qp_kernel, condense=condense,
-                          terms=terms, **budget)
-    return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie,
+    cassie = CassieConfig(qp_rho_start=qp_rho_start, **budget)
+    impl = ImplConfig(qp_loop=qp_loop, physics=physics, qp_linsys=qp_linsys, qp_kernel=qp_kernel,
+                      condense=condense, terms=terms)
+    return [ScenarioConfig(plant="cassie", seed=i, duration=duration, cassie=cassie, impl=impl,
                            hlip=HLIPConfig(z0=W["hlip.z0"], t_ssp=W["hlip.t_ssp"],
                                            t_dsp=W["hlip.t_dsp"]),
                            gain=GainConfig(type="lqr", with_position=True, q_c=W["gain.q_c"],
@@ -177,7 +178,7 @@ def _device_runs(batch, static, B: int, steps: int, devices, emit, loop: str) ->
 
 
 def _loop(static) -> str:
-    """The CLF-QP loop (``CassieConfig.qp_loop``) of a build's static settings."""
+    """The CLF-QP loop (``ImplConfig.qp_loop``) of a build's static settings."""
     if static.plant_settings.qp_compact:
         return "compact"
     return "while" if static.plant_settings.qp.early_exit else "fixed"
@@ -257,12 +258,12 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
                 condense: Sequence[str] = ("eigen",),
                 terms: Sequence[str] = ("mjx",)) -> list[dict]:
     """Run the benchmark for every batch size × CLF-QP loop (``qp_loops``, values of
-    ``CassieConfig.qp_loop``) × linear solve (``qp_linsys``, ``CassieConfig.qp_linsys``) ×
-    iterations' kernel (``qp_kernels``, ``CassieConfig.qp_kernel``; "fused" with the
-    "inverse" solve only) × condensation solve (``condense``, ``CassieConfig.condense``) ×
-    whole-body terms (``terms``, ``CassieConfig.terms``) ×
+    ``ImplConfig.qp_loop``) × linear solve (``qp_linsys``, ``ImplConfig.qp_linsys``) ×
+    iterations' kernel (``qp_kernels``, ``ImplConfig.qp_kernel``; "fused" with the
+    "inverse" solve only) × condensation solve (``condense``, ``ImplConfig.condense``) ×
+    whole-body terms (``terms``, ``ImplConfig.terms``) ×
     starting step size (``qp_rho_start``, ``CassieConfig.qp_rho_start``) ×
-    physics implementation (``physics``, values of ``CassieConfig.physics``) × device count; ``emit`` gets the markdown table (header, then
+    physics implementation (``physics``, values of ``ImplConfig.physics``) × device count; ``emit`` gets the markdown table (header, then
     one row per run).  With ``admm`` every batch size is also run (one device, the first
     variant) with the CLF-QP's ADMM budget cut to one convergence check, and the ADMM
     iterations' share of the tick follows (:func:`admm_share`, second table).  Returns one

@@ -126,10 +126,9 @@ def _sweep_overrides(p: argparse.ArgumentParser) -> None:
                    "step count)")
     p.add_argument("--limit", type=_positive_int, metavar="N",
                    help="keep only the first N scenarios")
-    p.add_argument("--physics", choices=_cassie_choices("physics"),
-                   help="override cassie.physics in the sweep's [base]: the implementation that "
-                   "steps the simulated Cassie (warp needs warp-lang: pip install 'hlip_jax[warp]'); "
-                   "like --plant and --duration, a path or grid axis that sets it keeps its own value")
+    p.add_argument("--physics", choices=_field_choices("physics"),
+                   help="override impl.physics in the sweep's [impl] table: the implementation that "
+                   "steps the simulated Cassie (warp needs warp-lang: pip install 'hlip_jax[warp]')")
 
 
 def _cache_options(p: argparse.ArgumentParser) -> None:
@@ -244,16 +243,27 @@ _BENCH_VARIANTS = (
 )
 
 
-def _cassie_choices(field: str) -> tuple:
-    """The allowed values of ``CassieConfig.<field>`` (one list for the file and the CLI)."""
+def _field_table(field: str) -> tuple:
+    """(table name, config class) that holds a bench variant's field: ``impl`` for the
+    implementation switches, ``cassie`` for the controller's own."""
+    import dataclasses
+
     from hlip_jax import config
-    return tuple(config.field_spec(config.CassieConfig, field)["choices"])
+    impl = {f.name for f in dataclasses.fields(config.ImplConfig)}
+    return ("impl", config.ImplConfig) if field in impl else ("cassie", config.CassieConfig)
 
 
-def _cassie_default(field: str) -> str:
-    """The default of ``CassieConfig.<field>``: what the bench times without the flag."""
+def _field_choices(field: str) -> tuple:
+    """The allowed values of the field (one list for the file and the CLI)."""
     from hlip_jax import config
-    return getattr(config.CassieConfig(), field)
+    return tuple(config.field_spec(_field_table(field)[1], field)["choices"])
+
+
+def _field_default(field: str) -> str:
+    """The field's default: what the bench times without the flag."""
+    import dataclasses
+    cls = _field_table(field)[1]
+    return next(f.default for f in dataclasses.fields(cls) if f.name == field)
 
 
 def _bench_parser(sub) -> None:
@@ -272,11 +282,11 @@ def _bench_parser(sub) -> None:
                    help="also time each batch with the CLF-QP's ADMM budget cut to one "
                    "convergence check and report the ADMM iterations' share of the tick")
     for field, metavar, what, note in _BENCH_VARIANTS:
-        choices = _cassie_choices(field)
+        choices = _field_choices(field)
         b.add_argument("--" + field.replace("_", "-"), nargs="+", metavar=metavar,
-                       default=[_cassie_default(field)], choices=choices,
+                       default=[_field_default(field)], choices=choices,
                        help=f"{what} to time, each on the same batch in this process "
-                       f"(cassie.{field}: {', '.join(choices)}{note})")
+                       f"({_field_table(field)[0]}.{field}: {', '.join(choices)}{note})")
     b.add_argument("--json", metavar="FILE", help="also write the rows as JSON")
 
 

@@ -99,7 +99,11 @@ class GainConfig:
 
     With ``with_position`` the gain acts on [c, p, v] (3-state: the global position error is
     removed too, deadbeat in 3 steps); without it on [p, v] only (the global position error
-    then persists and is left to the planner)."""
+    then persists and is left to the planner).  ``type = "deadbeat"`` is therefore the paper's
+    classic H-LIP gain K = [1, T_DSP + coth(λ T_SSP)/λ] only with ``with_position = false``;
+    with it, it is the 3-state deadbeat gain, whose weight on c grows as 1/T_SSP² (2.4 at the
+    Cassie preset's cadence, where it falls: docs/cassie_validation, "Why the classic deadbeat
+    gain falls")."""
     type: str = spec("deadbeat", doc="gain design", choices=("deadbeat", "lqr"))
     with_position: bool = spec(True, doc="feed back the global COM position error c too",
                                choices=(True, False))
@@ -193,6 +197,31 @@ class CassieConfig:
     qp_max_iter: int = spec(150, 25, 5000, "ADMM iteration budget of the CLF-QP per control tick "
                             "(static: one compile per value, equal across a batch)")
     qp_eps: float = spec(1e-4, 1e-8, 1e-1, "ADMM absolute and relative tolerance of the CLF-QP (static)")
+    qp_rho_start: str = spec("previous", doc="the ADMM step size rho each tick's CLF-QP starts from: "
+                             "the previous tick's final rho ('previous', as OSQP keeps rho between "
+                             "warm-started solves; about 40 % fewer iterations per tick, "
+                             "docs/cassie_validation) or the solver's default 0.1 ('default', "
+                             "the earlier behaviour)", choices=("default", "previous"))
+    qp_fallback: str = spec("hold", doc="torques of a tick whose CLF-QP the ADMM budget did not solve: "
+                            "the previous tick's ('hold') or the last iterate clipped to the limits ('iterate')",
+                            choices=("hold", "iterate"))
+    height_reference: str = spec("stance_foot", doc="what the COM-height target z0 and the "
+                                 "swing-foot height profile are measured from: the stance foot's "
+                                 "sole ('stance_foot', the paper's output: COM height over the "
+                                 "stance foot, as Xiong's Cassie controller measures it) or the "
+                                 "flat ground z = 0 ('ground', the earlier default; "
+                                 "docs/cassie_validation compares the two)",
+                                 choices=("stance_foot", "ground"))
+
+
+@dataclass(frozen=True)
+class ImplConfig:
+    """How a scenario is computed, never what it computes: the implementation switches of the
+    Cassie closed loop (ignored by the H-LIP plant).  A sweep sets them in its ``[impl]``
+    table, beside the profile that fills the ones it leaves unset for the backend
+    (:mod:`hlip_jax.impl`); every field is static (one value per sweep: one compiled program).
+    The same scenario within the solvers' tolerances whichever values are chosen; the
+    manifest records them with the scenario."""
     physics: str = spec("jax", doc="implementation that steps the simulated robot (static): MJX-JAX "
                         "('jax', every backend) or MJX's Warp implementation ('warp', needs "
                         "pip install 'hlip_jax[warp]'); the controller is the same code on both",
@@ -227,21 +256,6 @@ class CassieConfig:
                       "fixed body tree ('dense': the same terms within float rounding, tested "
                       "against C MuJoCo, without the tree scatters that XLA's deterministic GPU "
                       "operations sort; docs/benchmarks/cassie_gpu.md)", choices=("mjx", "dense"))
-    qp_rho_start: str = spec("previous", doc="the ADMM step size rho each tick's CLF-QP starts from: "
-                             "the previous tick's final rho ('previous', as OSQP keeps rho between "
-                             "warm-started solves; about 40 % fewer iterations per tick, "
-                             "docs/cassie_validation) or the solver's default 0.1 ('default', "
-                             "the earlier behaviour)", choices=("default", "previous"))
-    qp_fallback: str = spec("hold", doc="torques of a tick whose CLF-QP the ADMM budget did not solve: "
-                            "the previous tick's ('hold') or the last iterate clipped to the limits ('iterate')",
-                            choices=("hold", "iterate"))
-    height_reference: str = spec("stance_foot", doc="what the COM-height target z0 and the "
-                                 "swing-foot height profile are measured from: the stance foot's "
-                                 "sole ('stance_foot', the paper's output: COM height over the "
-                                 "stance foot, as Xiong's Cassie controller measures it) or the "
-                                 "flat ground z = 0 ('ground', the earlier default; "
-                                 "docs/cassie_validation compares the two)",
-                                 choices=("stance_foot", "ground"))
 
 
 @dataclass(frozen=True)
@@ -318,19 +332,19 @@ class ScenarioConfig:
     obstacles: tuple = ()
     cassie: CassieConfig = field(default_factory=CassieConfig)
     realism: RealismConfig = field(default_factory=RealismConfig)
+    impl: ImplConfig = field(default_factory=ImplConfig)
     swept: dict = field(default_factory=dict)
 
 
 #: settings that are array shapes or compiled solver settings: one value for every scenario of
 #: a batch (:func:`hlip_jax.rollout.build`) and of a sweep (:mod:`hlip_jax.sweep`)
 STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.viability", "mpc.qp_max_iter", "mpc.qp_eps",
-                 "cassie.qp_max_iter", "cassie.qp_eps", "cassie.qp_loop", "cassie.qp_linsys",
-                 "cassie.qp_kernel", "cassie.condense", "cassie.terms",
-                 "cassie.physics")
+                 "cassie.qp_max_iter", "cassie.qp_eps", "impl.qp_loop", "impl.qp_linsys",
+                 "impl.qp_kernel", "impl.condense", "impl.terms", "impl.physics")
 
 
 def field_value(cfg: "ScenarioConfig", field: str):
-    """The value of a dotted field (``"cassie.qp_loop"``) of a scenario."""
+    """The value of a dotted field (``"impl.qp_loop"``) of a scenario."""
     obj = cfg
     for k in field.split("."):
         obj = getattr(obj, k)

@@ -1,15 +1,17 @@
 """Implementation profiles: how a sweep is computed, chosen for the backend, never what it
 computes.
 
-A sweep's ``[impl]`` table names a profile (``profile = "auto"`` when absent):
+A sweep's ``[impl]`` table holds the implementation settings
+(:class:`hlip_jax.config.ImplConfig`: physics, qp_loop, qp_linsys, qp_kernel, condense, terms)
+and names a profile (``profile = "auto"`` when absent) that fills the ones it leaves unset:
 
 ``auto``
     ``gpu`` on a GPU backend, ``cpu`` on any other.
 ``cpu``
-    the sweep's own settings (the CassieConfig defaults where it sets none): the Cholesky
+    the sweep's own settings (the ImplConfig defaults where it sets none): the Cholesky
     solve, the eigen condensation, MJX's whole-body terms, MJX-JAX physics.
 ``gpu``
-    fills the Cassie implementation fields the sweep file does not set with the settings
+    fills the implementation fields the sweep file does not set with the settings
     measured fastest on an H200 at thousands of robots (docs/benchmarks/cassie_gpu.md): ``qp_linsys =
     "inverse"``, ``qp_kernel = "fused"`` (where the solve is the inverse), ``condense =
     "deflated"``, ``terms = "dense"``, and ``physics = "warp"`` where ``warp-lang`` imports.  On the validation set
@@ -18,8 +20,7 @@ A sweep's ``[impl]`` table names a profile (``profile = "auto"`` when absent):
 ``sweep``
     the sweep's own settings on any backend.
 
-Fields the sweep file sets itself (in ``[base.cassie]``, a path's overrides, a grid axis or
-``--physics``) always win.  The settings a profile fills are applied to the expanded configs
+Fields the sweep file sets itself (in ``[impl]``, or ``--physics``) always win.  The settings a profile fills are applied to the expanded configs
 before the run, so the manifest's configs, the run's identity (its config hash) and every
 replay hold what was computed; the manifest's ``impl`` entry records the profile, the backend
 and the fields it filled.  A profile only changes the arithmetic's route: the same scenario
@@ -35,11 +36,11 @@ from typing import NamedTuple, Sequence
 PROFILES = ("auto", "cpu", "gpu", "sweep")
 
 #: the GPU profile's settings
-GPU = {"cassie.qp_linsys": "inverse", "cassie.qp_kernel": "fused",
-       "cassie.condense": "deflated", "cassie.terms": "dense", "cassie.physics": "warp"}
+GPU = {"qp_linsys": "inverse", "qp_kernel": "fused", "condense": "deflated", "terms": "dense",
+       "physics": "warp"}
 
 #: a filled field that needs another field's value (the fused kernel runs the inverse solve)
-REQUIRES = {"cassie.qp_kernel": ("qp_linsys", "inverse")}
+REQUIRES = {"qp_kernel": ("qp_linsys", "inverse")}
 
 #: every field a profile may fill
 FIELDS = tuple(GPU)
@@ -47,13 +48,13 @@ FIELDS = tuple(GPU)
 
 class Resolved(NamedTuple):
     """A profile resolved for a backend: its name (``cpu``, ``gpu`` or ``sweep``), the backend
-    (``jax.default_backend()``) and the fields it fills {dotted field: value}."""
+    (``jax.default_backend()``) and the fields of ImplConfig it fills {field: value}."""
     profile: str
     backend: str
     settings: dict
 
     def describe(self) -> str:
-        filled = ", ".join(f"{k.split('.', 1)[1]} {v}" for k, v in self.settings.items())
+        filled = ", ".join(f"{k} {v}" for k, v in self.settings.items())
         return (f"implementation profile {self.profile} on the {self.backend} backend"
                 + (f": {filled}" if filled else ": the sweep's own settings"))
 
@@ -77,23 +78,22 @@ def resolve(profile: str, backend: str, explicit: frozenset, warp: bool) -> Reso
                          "allowed here: auto, cpu, sweep")
     settings = {} if name != "gpu" else {
         k: v for k, v in GPU.items()
-        if k not in explicit and (k != "cassie.physics" or warp)}
+        if k not in explicit and (k != "physics" or warp)}
     return Resolved(name, backend, settings)
 
 
 def apply(configs: Sequence, settings: dict) -> list:
-    """The configs with ``settings`` ({"cassie.<field>": value}) set on every Cassie scenario
-    (other plants have no such fields to change); a field of :data:`REQUIRES` only where the
-    field it needs has the value it needs (a sweep that sets the Cholesky solve keeps the XLA
-    loop)."""
+    """The configs with ``settings`` ({ImplConfig field: value}) set on every Cassie scenario
+    (the H-LIP plant has no implementation to choose); a field of :data:`REQUIRES` only where
+    the field it needs has the value it needs (a sweep that sets the Cholesky solve keeps the
+    XLA loop)."""
     out = []
     for c in configs:
         if c.plant != "cassie" or not settings:
             out.append(c)
             continue
-        cas = dataclasses.replace(c.cassie, **{k.split(".", 1)[1]: v for k, v in settings.items()
-                                               if k not in REQUIRES})
-        need = {k.split(".", 1)[1]: v for k, v in settings.items()
-                if k in REQUIRES and getattr(cas, REQUIRES[k][0]) == REQUIRES[k][1]}
-        out.append(dataclasses.replace(c, cassie=dataclasses.replace(cas, **need)))
+        im = dataclasses.replace(c.impl, **{k: v for k, v in settings.items() if k not in REQUIRES})
+        need = {k: v for k, v in settings.items()
+                if k in REQUIRES and getattr(im, REQUIRES[k][0]) == REQUIRES[k][1]}
+        out.append(dataclasses.replace(c, impl=dataclasses.replace(im, **need)))
     return out

@@ -30,8 +30,9 @@ A sweep file (read with :mod:`tomllib`) has seven top-level keys::
     "disturbance.pushes.0.force" = [100.0, 200.0]
     "disturbance.pushes.0.time"  = [5.0, 10.0]
 
-    [impl]                               # optional: hlip_jax.impl
+    [impl]                               # optional: hlip_jax.impl, config.ImplConfig
     profile = "auto"                     # GPU settings on a GPU, the sweep's own on a CPU
+    physics = "jax"                      # any implementation field set here wins
 
     [analysis]                           # optional: hlip_jax.analysis.settings
     splits = ["seed", "path", "speed"]   # held-out splits of coverage.csv
@@ -533,6 +534,9 @@ def _resolve_field(field: str, where: str) -> list:
             raise SweepError(f"{where}.{field!r}: {parts[1]!r} cannot be swept; add [[paths]] "
                              f"entries instead")
         return parts
+    if parts[0] == "impl" or (parts[0] == "cassie" and len(parts) == 2 and parts[1] in IMPL_FIELDS):
+        raise SweepError(f"{where}.{field!r}: an implementation setting cannot be swept (one "
+                         f"value per sweep, in its [impl] table)")
     cls, keys, prefix = C.ScenarioConfig, [], ""
     i = 0
     while i < len(parts):
@@ -717,7 +721,7 @@ def parse_sweep(text: str, *, source: str = "<string>", plant: str | None = None
       text: TOML text.
       source: file name for messages.
       plant, duration, physics: command-line overrides applied to every scenario (validated
-        like the file; ``physics`` sets ``cassie.physics``).
+        like the file; ``physics`` sets ``impl.physics``).
       limit: keep only the first ``limit`` scenarios (≥ 1).
       default_name: sweep name when the file sets none.
     Raises:
@@ -827,8 +831,8 @@ def _expand(doc, text, source, overrides, limit, default_name) -> Sweep:
         analysis = analysis_settings.from_dict(doc.get("analysis"))
     except ValueError as err:
         raise SweepError(str(err)) from None
-    profile = _impl_profile(doc.get("impl"))
-    base, base_path = _base_tables(doc, *overrides)
+    profile, impl_fields = _impl_table(doc.get("impl"))
+    base, base_path = _base_tables(doc, *overrides, impl=impl_fields)
     entries = _parse_paths(doc, base, base_path)
     axes = _parse_axes(doc.get("grid"))
     n_grid = math.prod(len(a) for a in axes) if axes else 1
@@ -855,41 +859,56 @@ def _expand(doc, text, source, overrides, limit, default_name) -> Sweep:
     return Sweep(name=name, description=desc, source=source, text=text,
                  paths=tuple(e.name for e in entries), axes=axes, total=total,
                  n_scenarios=stop, analysis=analysis, impl_profile=profile,
-                 impl_explicit=_impl_explicit(base, entries, axes), expand=expand)
+                 impl_explicit=frozenset(base["impl"]), expand=expand)
 
 
-def _impl_profile(raw) -> str:
-    """The ``[impl]`` table's profile ("auto" without one); SweepError naming the field."""
+#: the implementation fields (:class:`hlip_jax.config.ImplConfig`), set in ``[impl]`` only
+IMPL_FIELDS = tuple(f.name for f in dataclasses.fields(C.ImplConfig))
+
+
+def _impl_table(raw) -> tuple[str, dict]:
+    """(profile, {field: value}) of the ``[impl]`` table ("auto" and none without one);
+    SweepError naming the field."""
     if raw is None:
-        return "auto"
+        return "auto", {}
     if not isinstance(raw, dict):
         raise SweepError(f"impl: expected a table, got {_tname(raw)} {_fmt(raw)}")
     for k in raw:
-        if k != "profile":
-            raise _unknown_key(k, ("profile",), "impl")
+        if k != "profile" and k not in IMPL_FIELDS:
+            raise _unknown_key(k, ("profile",) + IMPL_FIELDS, "impl")
     prof = raw.get("profile", "auto")
     if prof not in impl_mod.PROFILES:
         raise SweepError(f"impl.profile: {_fmt(prof)} is not allowed; allowed: "
                          f"{', '.join(impl_mod.PROFILES)}")
-    return prof
+    fields = {k: v for k, v in raw.items() if k != "profile"}
+    _build(C.ImplConfig, fields, "impl")
+    return prof, fields
 
 
-def _impl_explicit(base: dict, entries, axes) -> frozenset:
-    """The implementation fields (:data:`hlip_jax.impl.FIELDS`) the sweep sets itself: in
-    [base.cassie] (with --physics), any path's overrides or a grid axis."""
-    tables = [base.get("cassie", {})] + [e.raw.get("cassie", {}) for e in entries]
-    named = {f"cassie.{k}" for t in tables if isinstance(t, dict) for k in t}
-    named |= {f for a in axes for f in a.fields}
-    return frozenset(named & set(impl_mod.FIELDS))
+def _refuse_impl_elsewhere(table, where: str) -> None:
+    """SweepError when a scenario table (``[base]``, a path's overrides) sets an
+    implementation field: they live in the sweep's ``[impl]`` table (one value per sweep)."""
+    if not isinstance(table, dict):
+        return
+    if "impl" in table:
+        raise SweepError(f"{where}.impl: implementation settings belong in the sweep's [impl] "
+                         f"table (one value per sweep; allowed there: {', '.join(IMPL_FIELDS)})")
+    cassie = table.get("cassie")
+    for k in (cassie if isinstance(cassie, dict) else ()):
+        if k in IMPL_FIELDS:
+            raise SweepError(f"{where}.cassie.{k}: an implementation setting; write it in the "
+                             f"sweep's [impl] table ({k} = {_fmt(cassie[k])})")
 
 
-def _base_tables(doc: dict, plant, duration, physics=None) -> tuple[dict, dict]:
-    """([base] with the command-line overrides, [base.path]), the base validated alone so its
-    errors name base.* fields."""
+def _base_tables(doc: dict, plant, duration, physics=None, impl=None) -> tuple[dict, dict]:
+    """([base] with the command-line overrides and the ``[impl]`` fields ``impl`` as its
+    ``impl`` table, [base.path]), the base validated alone so its errors name base.* fields."""
     base = doc.get("base", {})
     if not isinstance(base, dict):
         raise SweepError(f"base: expected a table, got {_tname(base)} {_fmt(base)}")
+    _refuse_impl_elsewhere(base, "base")
     base = dict(base)
+    base["impl"] = dict(impl or {})
     base_path = base.pop("path", {})
     if not isinstance(base_path, dict):
         raise SweepError(f"base.path: expected a table of path parameters, got {_tname(base_path)}")
@@ -898,8 +917,7 @@ def _base_tables(doc: dict, plant, duration, physics=None) -> tuple[dict, dict]:
     if duration is not None:
         base["duration"] = duration
     if physics is not None:
-        cassie = base.get("cassie", {})
-        base["cassie"] = {**(cassie if isinstance(cassie, dict) else {}), "physics": physics}
+        base["impl"]["physics"] = physics
     _build(C.ScenarioConfig, base, "base", exclude=BASE_EXCLUDE)
     return base, base_path
 
@@ -944,6 +962,7 @@ def _parse_paths(doc: dict, base: dict, base_path: dict) -> list[_PathEntry]:
         over = p.get("overrides", {})
         if not isinstance(over, dict):
             raise SweepError(f"{loc}.overrides: expected a table, got {_tname(over)}")
+        _refuse_impl_elsewhere(over, f"{loc}.overrides")
         merged = _deep_merge(base, over)
         cfg = _build(C.ScenarioConfig, _with_gait(merged, f"{loc}.overrides"), f"{loc}.overrides",
                      exclude=BASE_EXCLUDE)
@@ -1195,10 +1214,22 @@ def config_to_dict(cfg: C.ScenarioConfig) -> dict:
 
 def config_from_dict(d: dict) -> C.ScenarioConfig:
     """The inverse of :func:`config_to_dict` (validated like a sweep file's table)."""
-    raw = {k: v for k, v in d.items() if k not in BASE_EXCLUDE}
+    raw = _with_impl_table({k: v for k, v in d.items() if k not in BASE_EXCLUDE})
     cfg = _build(C.ScenarioConfig, raw, f"scenario {d.get('name')!r}", exclude=BASE_EXCLUDE)
     path = C.PathConfig(shape=d["path"]["shape"], params=dict(d["path"]["params"]))
     return dataclasses.replace(cfg, name=d["name"], path=path, swept=dict(d.get("swept", {})))
+
+
+def _with_impl_table(raw: dict) -> dict:
+    """A stored scenario table with the implementation fields in its ``impl`` table: results
+    written before :class:`hlip_jax.config.ImplConfig` kept them in ``cassie``."""
+    cassie = raw.get("cassie")
+    if not isinstance(cassie, dict) or not any(k in IMPL_FIELDS for k in cassie):
+        return raw
+    impl = dict(raw.get("impl") or {})
+    impl.update({k: v for k, v in cassie.items() if k in IMPL_FIELDS})
+    return {**raw, "cassie": {k: v for k, v in cassie.items() if k not in IMPL_FIELDS},
+            "impl": impl}
 
 
 def config_hash(configs, extra: dict | None = None) -> str:

@@ -20,12 +20,12 @@ def test_bench_configs_carry_the_admm_budget():
     assert bench.configs(1, 0.6)[0].cassie.qp_max_iter == 150
     # the CLF-QP loop and the physics implementation of a bench variant reach the configs
     c = bench.configs(2, 0.6, qp_max_iter=25, qp_loop="fixed", physics="warp")
-    assert [(x.cassie.qp_loop, x.cassie.physics, x.cassie.qp_max_iter) for x in c] == [("fixed", "warp", 25)] * 2
-    assert bench.configs(1, 0.6)[0].cassie.physics == "jax"
-    assert bench.configs(1, 0.6, qp_linsys="inverse")[0].cassie.qp_linsys == "inverse"
-    assert bench.configs(1, 0.6)[0].cassie.qp_linsys == "cholesky"
-    assert bench.configs(1, 0.6, qp_kernel="fused")[0].cassie.qp_kernel == "fused"
-    assert bench.configs(1, 0.6)[0].cassie.qp_kernel == "xla"
+    assert [(x.impl.qp_loop, x.impl.physics, x.cassie.qp_max_iter) for x in c] == [("fixed", "warp", 25)] * 2
+    assert bench.configs(1, 0.6)[0].impl.physics == "jax"
+    assert bench.configs(1, 0.6, qp_linsys="inverse")[0].impl.qp_linsys == "inverse"
+    assert bench.configs(1, 0.6)[0].impl.qp_linsys == "cholesky"
+    assert bench.configs(1, 0.6, qp_kernel="fused")[0].impl.qp_kernel == "fused"
+    assert bench.configs(1, 0.6)[0].impl.qp_kernel == "xla"
     # variants: every combination, the fused kernel with the inverse solve only
     v = bench._variants(["jax"], ["while"], ["cholesky", "inverse"], ["xla", "fused"], ["previous"])
     assert [(x["qp_linsys"], x["qp_kernel"]) for x in v] == [

@@ -193,7 +193,7 @@ def test_clfqp_respects_limits_and_matches_osqp(cassie, terms_fn):
 
 def test_fixed_trip_count_loop_gives_the_same_torques(cassie, terms_fn):
     # the tick's CLF-QP settings with the ADMM blocks in a loop of static trip count
-    # (cassie.qp_loop = "fixed", the accelerator default) against the while loop: the same
+    # (impl.qp_loop = "fixed", the accelerator default) against the while loop: the same
     # torques to 1e-12 N m (float64; two compiled programs may round differently), the same
     # status and iteration count, on a perturbed state and from a warm start
     meas, des, cond, contact, lo, hi = _left_foot_problem(cassie, terms_fn, seed=5)
@@ -211,7 +211,7 @@ def test_fixed_trip_count_loop_gives_the_same_torques(cassie, terms_fn):
         assert int(a.status) == int(b.status) and int(a.iterations) == int(b.iterations)
 
 def test_compacted_batch_gives_the_same_torques(cassie, terms_fn):
-    # cassie.qp_loop = "compact": the robots' CLF-QPs vmapped together, solved with straggler
+    # impl.qp_loop = "compact": the robots' CLF-QPs vmapped together, solved with straggler
     # compaction through qp.solve's batching rule, against the plain vmapped while loop, on
     # six perturbed states (cold, then warm from the first solve): the same statuses and
     # iterations, torques within 1e-12 N m (float64; differently compiled programs may round
@@ -268,7 +268,7 @@ def _same_cold_and_warm_solves(cassie, problem, settings_a, settings_b):
 
 
 def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
-    # cassie.qp_linsys = "inverse" (K⁻¹ formed once per factorisation, then products) against
+    # impl.qp_linsys = "inverse" (K⁻¹ formed once per factorisation, then products) against
     # the Cholesky solves of every iteration, with the tick's settings, cold and warm: the
     # same iterations and status, torques within 1e-9 N m (float64: only the linear solve's
     # rounding differs, ~1e-13 relative per iteration, amplified by at most a few hundred
@@ -286,7 +286,7 @@ def test_inverse_linear_solve_gives_the_same_torques(cassie, terms_fn):
 
 
 def test_fused_kernel_gives_the_same_torques(cassie, terms_fn):
-    # cassie.qp_kernel = "fused" (each block of ADMM iterations as one Pallas kernel,
+    # impl.qp_kernel = "fused" (each block of ADMM iterations as one Pallas kernel,
     # interpreted on the CPU) against the XLA iterations, both with the inverse solve and the
     # tick's settings, cold and warm: the same iterations and status, torques within 1e-9 N m
     # (float64: the kernel sums in another order, ~1e-16 relative per operation, amplified by

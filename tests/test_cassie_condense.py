@@ -1,4 +1,4 @@
-"""The condensation's two solves for the constraint forces (``cassie.condense``): the null
+"""The condensation's two solves for the constraint forces (``impl.condense``): the null
 space of G = J M⁻¹ Jᵀ is the plantar four-bars' plane normals, the deflated solve is the
 minimum-norm solution (against numpy's SVD pseudo-inverse), both solves are the same model in
 float64, and only the deflated one keeps float32 close to float64."""
@@ -117,8 +117,8 @@ def test_unknown_solve_is_refused(cassie, terms_fn):
 
 
 def test_the_setting_reaches_the_tick():
-    from hlip_jax.config import CassieConfig, ScenarioConfig
+    from hlip_jax.config import ImplConfig, ScenarioConfig
     from hlip_jax.plants.cassie import plant
     for solve in dynamics.SOLVES:
-        cfg = ScenarioConfig(plant="cassie", cassie=CassieConfig(condense=solve))
+        cfg = ScenarioConfig(plant="cassie", impl=ImplConfig(condense=solve))
         assert plant.settings(cfg).condense == solve

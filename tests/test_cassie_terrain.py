@@ -234,7 +234,7 @@ def test_uneven_ground_makes_the_batch_carry_the_terrain_and_warp_is_refused(fie
     with pytest.raises(ValueError, match=f"realism.{field}"):
         plant.make_params(uneven, 1, 0.0, True, "flat")
     warp = C.ScenarioConfig(plant="cassie", realism=C.RealismConfig(**{field: value}),
-                            cassie=C.CassieConfig(physics="warp"))
+                            impl=C.ImplConfig(physics="warp"))
     assert plants.check(warp).startswith(f"realism.{field}: {value:g} needs the MJX-JAX physics")
     both = C.ScenarioConfig(plant="cassie", realism=C.RealismConfig(step_height=0.02,
                                                                       rough_height=0.02))

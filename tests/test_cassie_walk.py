@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from hlip_jax import hlip, sweep
-from hlip_jax.config import (CassieConfig, DisturbanceConfig, HLIPConfig, PushConfig,
+from hlip_jax.config import (CassieConfig, DisturbanceConfig, HLIPConfig, ImplConfig, PushConfig,
                              ScenarioConfig)
 from hlip_jax.plants.base import StepCommand
 from hlip_jax.plants.cassie import gaits, model, outputs, plant, tick
@@ -208,19 +208,22 @@ def test_make_params_pushes_and_validation():
     assert rollout.build([ScenarioConfig()])[1].plant_settings is None     # H-LIP plant
     # the CLF-QP's block loop is static and sweep-wide too
     assert rollout.build([cfg3])[1].plant_settings.qp.early_exit is True
-    cfg4 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_loop="fixed", qp_max_iter=50))
+    cfg4 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_max_iter=50),
+                          impl=ImplConfig(qp_loop="fixed"))
     assert rollout.build([cfg4])[1].plant_settings.qp.early_exit is False
-    with pytest.raises(ValueError, match="cassie.qp_loop"):
+    with pytest.raises(ValueError, match="impl.qp_loop"):
         rollout.build([cfg3, cfg4])
-    cfg6 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_loop="compact", qp_max_iter=50))
+    cfg6 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_max_iter=50),
+                          impl=ImplConfig(qp_loop="compact"))
     compact = rollout.build([cfg6])[1].plant_settings
     assert compact.qp.early_exit is True and compact.qp_compact is True
     assert rollout.build([cfg3])[1].plant_settings.qp_compact is False
     # and so is its linear solve
-    cfg5 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_linsys="inverse", qp_max_iter=50))
+    cfg5 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_max_iter=50),
+                          impl=ImplConfig(qp_linsys="inverse"))
     assert rollout.build([cfg5])[1].plant_settings.qp.linsys == "inverse"
     assert rollout.build([cfg3])[1].plant_settings.qp.linsys == "cholesky"
-    with pytest.raises(ValueError, match="cassie.qp_linsys"):
+    with pytest.raises(ValueError, match="impl.qp_linsys"):
         rollout.build([cfg3, cfg5])
 
 

@@ -1,4 +1,4 @@
-"""The Warp physics backend (``cassie.physics = "warp"``, :mod:`hlip_jax.plants.cassie.warp_physics`):
+"""The Warp physics backend (``impl.physics = "warp"``, :mod:`hlip_jax.plants.cassie.warp_physics`):
 the same robot stepped by MJX's Warp implementation against C MuJoCo, and the closed loop on
 it against the closed loop on MJX-JAX.  Runs where warp-lang is installed (the test extra
 installs it; Warp runs on the CPU too)."""
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hlip_jax import bench, rollout
-from hlip_jax.config import CassieConfig, ScenarioConfig
+from hlip_jax.config import ImplConfig, ScenarioConfig
 from hlip_jax.plants.cassie import control, model, plant, warp_physics
 from hlip_jax.plants.cassie.mjx_import import mjx
 
@@ -20,13 +20,13 @@ from hlip_jax.plants.cassie.mjx_import import mjx
 def test_warp_needs_warp_lang_and_is_static(monkeypatch):
     # a missing warp-lang is a clear error naming the field and the allowed value
     monkeypatch.setattr(warp_physics, "available", lambda: False)
-    cfg = ScenarioConfig(plant="cassie", cassie=CassieConfig(physics="warp"))
-    with pytest.raises(ValueError, match="cassie.physics = 'warp' needs the warp-lang package.*'jax'"):
+    cfg = ScenarioConfig(plant="cassie", impl=ImplConfig(physics="warp"))
+    with pytest.raises(ValueError, match="impl.physics = 'warp' needs the warp-lang package.*'jax'"):
         plant.settings(cfg)
     monkeypatch.undo()
     pytest.importorskip("warp")
     assert plant.settings(cfg).physics == "warp"
-    with pytest.raises(ValueError, match="cassie.physics"):          # static: one per batch
+    with pytest.raises(ValueError, match="impl.physics"):          # static: one per batch
         rollout.build([cfg, ScenarioConfig(plant="cassie")])
 
 
@@ -36,12 +36,12 @@ def test_a_warp_sweep_without_warp_lang_is_refused_before_it_runs(tmp_path, caps
     from hlip_jax import cli, plants
     monkeypatch.setattr(plants, "warp_installed", lambda: False)
     sw = tmp_path / "w.toml"
-    sw.write_text('name = "w"\n[base]\nplant = "cassie"\nduration = 1.0\n[base.cassie]\n'
+    sw.write_text('name = "w"\n[base]\nplant = "cassie"\nduration = 1.0\n[impl]\n'
                   'physics = "warp"\n[[paths]]\nshape = "line"\n')
     for argv in (["show", str(sw)], ["run", str(sw), "--out", str(tmp_path / "r")]):
         assert cli.main(argv) == 2
         err = capsys.readouterr().err
-        assert "cassie.physics: 'warp' needs the warp-lang package" in err and "'jax'" in err
+        assert "impl.physics: 'warp' needs the warp-lang package" in err and "'jax'" in err
     assert not (tmp_path / "r").exists()
 
 
@@ -118,7 +118,7 @@ def test_closed_loop_on_warp_walks_like_on_jax():
     pytest.importorskip("warp")
     base = bench.configs(3, 3.0)[2]
     logs = {ph: rollout.simulate([dataclasses.replace(
-        base, cassie=dataclasses.replace(base.cassie, physics=ph))]) for ph in ("jax", "warp")}
+        base, impl=dataclasses.replace(base.impl, physics=ph))]) for ph in ("jax", "warp")}
     a, b = logs["jax"], logs["warp"]
     assert int(a.status[0]) == 0 and int(b.status[0]) == 0
     n = int(a.valid[0].sum())
@@ -129,20 +129,20 @@ def test_closed_loop_on_warp_walks_like_on_jax():
 
 
 def test_physics_override_from_the_command_line(tmp_path, capsys, monkeypatch):
-    # --physics sets cassie.physics of every scenario (run and show), validated like the file:
+    # --physics sets impl.physics of every scenario (run and show), validated like the file:
     # without warp-lang a Warp run is refused naming the field; an unknown value is exit 2
     from hlip_jax import cli, plants, sweep
     monkeypatch.setattr(plants, "warp_installed", lambda: True)    # parsing only: no Warp run
     text = ('name = "o"\n[base]\nplant = "cassie"\nduration = 1.0\n[[paths]]\nshape = "line"\n'
-            '[[paths]]\nname = "c"\nshape = "circle"\n[base.cassie]\nphysics = "jax"\n')
+            '[[paths]]\nname = "c"\nshape = "circle"\n[impl]\nphysics = "jax"\n')
     sw = sweep.parse_sweep(text, physics="warp")
-    assert {s.cassie.physics for s in sw.scenarios} == {"warp"}
-    assert {s.cassie.physics for s in sweep.parse_sweep(text).scenarios} == {"jax"}
+    assert {s.impl.physics for s in sw.scenarios} == {"warp"}
+    assert {s.impl.physics for s in sweep.parse_sweep(text).scenarios} == {"jax"}
     f = tmp_path / "o.toml"
     f.write_text(text)
     monkeypatch.setattr(plants, "warp_installed", lambda: False)
     assert cli.main(["run", str(f), "--physics", "warp", "--out", str(tmp_path / "r")]) == 2
-    assert "cassie.physics: 'warp' needs the warp-lang package" in capsys.readouterr().err
+    assert "impl.physics: 'warp' needs the warp-lang package" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
     with pytest.raises(SystemExit) as exc:
         cli.main(["show", str(f), "--physics", "cuda"])

@@ -819,8 +819,9 @@ def test_bench_variant_flags_take_the_config_choices(capsys):
     # the condensation's and the terms' lists there are the modules' own
     from hlip_jax import cli, config
     from hlip_jax.plants.cassie import dynamics, model
-    spec = lambda f: tuple(config.field_spec(config.CassieConfig, f)["choices"])
+    spec = lambda f: tuple(config.field_spec(cli._field_table(f)[1], f)["choices"])
     assert spec("condense") == dynamics.SOLVES and spec("terms") == model.TERMS
+    assert cli._field_table("physics")[0] == "impl" and cli._field_table("qp_rho_start")[0] == "cassie"
     ap = cli.build_parser()
     bench = next(a for a in ap._subparsers._group_actions[0].choices["bench"]._actions
                  if a.dest == "terms")

@@ -3,6 +3,8 @@ that a sweep's own settings win, and that a run records what it used."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from hlip_jax import impl, runner, store, sweep
@@ -15,7 +17,7 @@ def test_auto_is_the_gpu_profile_on_a_gpu_and_the_sweeps_own_elsewhere():
     assert impl.resolve("auto", "cpu", none, True) == ("cpu", "cpu", {})
     gpu = impl.resolve("auto", "gpu", none, True)
     assert gpu.profile == "gpu" and gpu.settings == impl.GPU
-    assert "cassie.physics" not in impl.resolve("auto", "gpu", none, False).settings
+    assert "physics" not in impl.resolve("auto", "gpu", none, False).settings
     assert impl.resolve("sweep", "gpu", none, True).settings == {}
     with pytest.raises(ValueError, match="needs a GPU backend"):
         impl.resolve("gpu", "cpu", none, True)
@@ -24,17 +26,40 @@ def test_auto_is_the_gpu_profile_on_a_gpu_and_the_sweeps_own_elsewhere():
 
 
 def test_fields_the_sweep_sets_win_and_the_fused_kernel_needs_the_inverse():
-    sw = sweep.parse_sweep(CASSIE + '[paths.overrides.cassie]\nqp_linsys = "cholesky"\n'
-                           'terms = "mjx"\n')
-    assert sw.impl_explicit == {"cassie.qp_linsys", "cassie.terms"}
+    sw = sweep.parse_sweep(CASSIE + '[impl]\nqp_linsys = "cholesky"\nterms = "mjx"\n')
+    assert sw.impl_explicit == {"qp_linsys", "terms"}
     r = impl.resolve(sw.impl_profile, "gpu", sw.impl_explicit, True)
-    c = impl.apply(list(sw.scenarios), r.settings)[0].cassie
+    c = impl.apply(list(sw.scenarios), r.settings)[0].impl
     assert (c.qp_linsys, c.qp_kernel, c.terms, c.condense, c.physics) == (
         "cholesky", "xla", "mjx", "deflated", "warp")
     hlip = sweep.parse_sweep('[[paths]]\nshape = "line"\n').scenarios
     assert impl.apply(hlip, r.settings) == list(hlip)          # no Cassie, nothing to fill
-    grid = sweep.parse_sweep(CASSIE + '[grid.product]\n"cassie.condense" = ["eigen"]\n')
-    assert "cassie.condense" in grid.impl_explicit
+    assert sweep.parse_sweep(CASSIE, physics="warp").impl_explicit == {"physics"}
+
+
+@pytest.mark.parametrize("text,frag", [
+    ('[base.cassie]\nphysics = "warp"\n', "base.cassie.physics: an implementation setting; "
+     "write it in the sweep's [impl] table"),
+    ('[paths.overrides.cassie]\nterms = "dense"\n', "paths.0.overrides.cassie.terms: an "
+     "implementation setting"),
+    ('[base.impl]\ncondense = "deflated"\n', "base.impl: implementation settings belong in "
+     "the sweep's [impl] table"),
+    ('[grid.product]\n"impl.condense" = ["eigen", "deflated"]\n', "cannot be swept"),
+    ('[grid.product]\n"cassie.condense" = ["eigen"]\n', "cannot be swept"),
+    ('[impl]\ncondense = "fast"\n', "impl.condense"),
+])
+def test_implementation_settings_live_in_the_impl_table_only(text, frag):
+    # one value per sweep, in one place: elsewhere a one-line error that says where they go
+    with pytest.raises(sweep.SweepError, match=re.escape(frag)):
+        sweep.parse_sweep(CASSIE + text)
+
+
+def test_results_written_with_the_settings_in_cassie_still_read():
+    # manifests written before the [impl] table kept the implementation fields in "cassie"
+    cfg = sweep.parse_sweep(CASSIE + '[impl]\nterms = "dense"\n').scenarios[0]
+    old = sweep.config_to_dict(cfg)
+    old["cassie"].update(old.pop("impl"))
+    assert sweep.config_from_dict(old) == cfg
 
 
 @pytest.mark.parametrize("table,frag", [('[impl]\nprofile = "fast"\n', "impl.profile"),

@@ -40,11 +40,11 @@ def test_cassie_check_rejects_hlip_only_disturbances():
 
 
 def test_cassie_check_rejects_the_fused_kernel_without_the_inverse():
-    cassie = C.CassieConfig(qp_kernel="fused")
-    msg = plants.check(C.ScenarioConfig(plant="cassie", cassie=cassie))
-    assert msg and msg.startswith("cassie.qp_kernel") and "qp_linsys = 'inverse'" in msg
-    ok = dataclasses.replace(cassie, qp_linsys="inverse")
-    assert plants.check(C.ScenarioConfig(plant="cassie", cassie=ok)) is None
+    im = C.ImplConfig(qp_kernel="fused")
+    msg = plants.check(C.ScenarioConfig(plant="cassie", impl=im))
+    assert msg and msg.startswith("impl.qp_kernel") and "qp_linsys = 'inverse'" in msg
+    ok = dataclasses.replace(im, qp_linsys="inverse")
+    assert plants.check(C.ScenarioConfig(plant="cassie", impl=ok)) is None
 
 
 def test_cassie_step_span_is_computed_once_per_gait():

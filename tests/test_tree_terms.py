@@ -1,4 +1,4 @@
-"""The dense smooth terms (:mod:`hlip_jax.plants.cassie.tree_terms`, ``cassie.terms = "dense"``)
+"""The dense smooth terms (:mod:`hlip_jax.plants.cassie.tree_terms`, ``impl.terms = "dense"``)
 against C MuJoCo's own stages (mj_forward's kinematics, COM, composite inertia, velocities,
 passive forces and RNE; mj_fullM) at random states of Cassie and of a small tree with every
 joint type, with parameters edited in the model, and against MJX's stages through
@@ -172,22 +172,21 @@ def test_models_the_dense_terms_do_not_cover_are_refused():
 def test_terms_is_a_static_setting():
     from hlip_jax import config
     from hlip_jax.plants.cassie import plant
-    assert "cassie.terms" in config.STATIC_FIELDS
-    assert config.field_spec(config.CassieConfig, "terms")["choices"] == model.TERMS
-    cfg = config.ScenarioConfig(plant="cassie",
-                                cassie=dataclasses.replace(config.CassieConfig(), terms="dense"))
+    assert "impl.terms" in config.STATIC_FIELDS
+    assert config.field_spec(config.ImplConfig, "terms")["choices"] == model.TERMS
+    cfg = config.ScenarioConfig(plant="cassie", impl=config.ImplConfig(terms="dense"))
     assert plant.settings(cfg).terms == "dense"
 
 
 @pytest.mark.parametrize("noisy", [False, True], ids=["ideal", "sensor-noise"])
 def test_a_walking_step_computes_every_term_as_set(monkeypatch, noisy):
     # the ticks, the step's end (the true state the S2S log records) and, with sensor noise,
-    # the estimated state all compute the whole-body terms the way cassie.terms says
+    # the estimated state all compute the whole-body terms the way impl.terms says
     from hlip_jax import bench, config, rollout
     base = bench.configs(1, 1.0)[0]
     real = config.RealismConfig(joint_noise=0.5) if noisy else base.realism
     cfg = dataclasses.replace(base, realism=real,
-                              cassie=dataclasses.replace(base.cassie, terms="dense"))
+                              impl=dataclasses.replace(base.impl, terms="dense"))
     batch, static = rollout.build([cfg])
     carry = jax.eval_shape(lambda b: rollout._start_batch(b, static), batch)[0]
     seen, inner = [], model.robot_terms
@@ -204,7 +203,7 @@ def test_a_walking_step_computes_every_term_as_set(monkeypatch, noisy):
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_closed_loop_with_dense_terms_walks_as_with_mjx_terms(float64):
-    # the walking controller with cassie.terms = "dense" against "mjx" over 1.5 s at 0.4 m/s,
+    # the walking controller with impl.terms = "dense" against "mjx" over 1.5 s at 0.4 m/s,
     # float64.  The terms agree to ~1e-13, but the CLF-QP's ADMM stops at its tolerance
     # (1e-4), so a last-bit difference can end a tick's iterations one check earlier; the
     # torques then differ at the solver's tolerance and the closed loop grows that ~10-30x per
@@ -213,7 +212,7 @@ def test_closed_loop_with_dense_terms_walks_as_with_mjx_terms(float64):
     from hlip_jax import bench, rollout
     base = bench.configs(3, 1.5)[2]
     logs = {t: rollout.simulate([dataclasses.replace(
-        base, cassie=dataclasses.replace(base.cassie, terms=t))]) for t in ("mjx", "dense")}
+        base, impl=dataclasses.replace(base.impl, terms=t))]) for t in ("mjx", "dense")}
     a, b = logs["mjx"], logs["dense"]
     assert int(a.status[0]) == 0 and int(b.status[0]) == 0
     n = int(a.valid[0].sum())

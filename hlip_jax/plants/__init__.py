@@ -82,19 +82,19 @@ def check(cfg) -> Optional[str]:
                         f"allowed with plant = 'cassie': {_show(getattr(d0, f))} (Cassie takes "
                         "disturbance.noise_v, disturbance.step_error and disturbance.pushes)")
         for f in ("step_height", "rough_height"):
-            if cfg.cassie.physics == "warp" and getattr(cfg.realism, f) != 0.0:
+            if cfg.impl.physics == "warp" and getattr(cfg.realism, f) != 0.0:
                 return (f"realism.{f}: {getattr(cfg.realism, f):g} needs the MJX-JAX physics "
-                        "(the Warp physics has no terrain); allowed with cassie.physics = "
+                        "(the Warp physics has no terrain); allowed with impl.physics = "
                         "'warp': 0")
-        if cfg.cassie.qp_kernel == "fused" and cfg.cassie.qp_linsys != "inverse":
-            return (f"cassie.qp_kernel: 'fused' with cassie.qp_linsys = {cfg.cassie.qp_linsys!r}; "
+        if cfg.impl.qp_kernel == "fused" and cfg.impl.qp_linsys != "inverse":
+            return (f"impl.qp_kernel: 'fused' with impl.qp_linsys = {cfg.impl.qp_linsys!r}; "
                     "allowed: 'xla', or 'fused' with qp_linsys = 'inverse' (the kernel "
                     "multiplies by the inverse)")
         if cfg.realism.step_height != 0.0 and cfg.realism.rough_height != 0.0:
             return ("realism.rough_height: a scenario has a step (realism.step_height) or rough "
                     "ground, not both; allowed with step_height != 0: 0")
-        if cfg.cassie.physics == "warp" and not warp_installed():
-            return ("cassie.physics: 'warp' needs the warp-lang package (pip install "
+        if cfg.impl.physics == "warp" and not warp_installed():
+            return ("impl.physics: 'warp' needs the warp-lang package (pip install "
                     "'hlip_jax[warp]'); allowed without it: 'jax'")
     return None
 

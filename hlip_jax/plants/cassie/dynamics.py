@@ -195,7 +195,7 @@ def condense(terms: model.RobotTerms, actuation, contact, springs=None,
         validation set with an earlier preset (docs/cassie_gait.md, round 11), and as many as
         this one with the preset now (docs/cassie_validation, "With the GPU settings").
       solve (static): "eigen" (``reg`` applies) or "deflated", that projection with one
-        Cholesky factorisation (module doc; ``cassie.condense``).
+        Cholesky factorisation (module doc; ``impl.condense``).
     """
     if solve not in SOLVES:
         raise ValueError(f"solve: {solve!r}; allowed: {SOLVES}")

@@ -66,7 +66,7 @@ CONTACT_SITES = ("left_toe", "left_heel", "right_toe", "right_heel")
 #: connect constraints in the order used by every (4, ...) / (12, ...) array here
 LOOPS = ("left_achilles_loop", "left_plantar_loop", "right_achilles_loop", "right_plantar_loop")
 FOOT_SPHERE_RADIUS = 0.02  # [m] contact spheres; the site is the sphere centre
-#: how :func:`smooth` computes the smooth terms (``cassie.terms``): MJX's own stages ("mjx")
+#: how :func:`smooth` computes the smooth terms (``impl.terms``): MJX's own stages ("mjx")
 #: or :mod:`tree_terms`' dense array programs ("dense"; the same terms, no tree scatters)
 TERMS = ("mjx", "dense")
 

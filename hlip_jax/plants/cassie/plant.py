@@ -361,21 +361,21 @@ def step(params: Params, state: State, cmd: StepCommand,
 
 def settings(cfg, robots: int = 1) -> tick.Settings:
     """The tick's static settings of a scenario simulated in a batch of ``robots``: the
-    CLF-QP's ADMM settings (``cassie.qp_max_iter``, ``qp_eps``, ``qp_loop``, ``qp_linsys``,
-    ``qp_kernel``), the condensation's solve (``cassie.condense``), how the whole-body terms
-    are computed (``cassie.terms``), the physics' implementation (``cassie.physics``; "warp"
+    CLF-QP's ADMM settings (``cassie.qp_max_iter``, ``qp_eps``, ``impl.qp_loop``,
+    ``qp_linsys``, ``qp_kernel``), the condensation's solve (``impl.condense``), how the whole-body terms
+    are computed (``impl.terms``), the physics' implementation (``impl.physics``; "warp"
     raises ``ValueError`` where warp-lang is missing) and the batch size (Warp's contact
     buffer holds the whole batch's contacts)."""
-    if cfg.cassie.physics == "warp":
+    if cfg.impl.physics == "warp":
         from hlip_jax.plants.cassie import warp_physics
         warp_physics.require()
     qp_settings = clfqp.DEFAULT_SETTINGS._replace(
         max_iter=cfg.cassie.qp_max_iter, eps_abs=cfg.cassie.qp_eps, eps_rel=cfg.cassie.qp_eps,
-        early_exit=cfg.cassie.qp_loop != "fixed", linsys=cfg.cassie.qp_linsys,
-        block_kernel=cfg.cassie.qp_kernel)
-    return tick.Settings(qp=qp_settings, qp_compact=cfg.cassie.qp_loop == "compact",
-                         physics=cfg.cassie.physics, robots=int(robots),
-                         condense=cfg.cassie.condense, terms=cfg.cassie.terms)
+        early_exit=cfg.impl.qp_loop != "fixed", linsys=cfg.impl.qp_linsys,
+        block_kernel=cfg.impl.qp_kernel)
+    return tick.Settings(qp=qp_settings, qp_compact=cfg.impl.qp_loop == "compact",
+                         physics=cfg.impl.physics, robots=int(robots),
+                         condense=cfg.impl.condense, terms=cfg.impl.terms)
 
 
 PLANT = Plant(name="cassie", make_params=make_params, init=init, measure=measure,

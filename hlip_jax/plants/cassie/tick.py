@@ -107,8 +107,8 @@ class Settings(NamedTuple):
     physics, "jax" (MJX-JAX) or "warp" (MJX's Warp implementation, :mod:`warp_physics`), and
     the number of robots stepped together in one vmapped batch (Warp sizes its contact buffer
     for all of them at once), how the condensation solves for the constraint forces
-    (:data:`dynamics.SOLVES`, ``cassie.condense``) and how the whole-body terms are computed
-    (:data:`model.TERMS`, ``cassie.terms``)."""
+    (:data:`dynamics.SOLVES`, ``impl.condense``) and how the whole-body terms are computed
+    (:data:`model.TERMS`, ``impl.terms``)."""
     qp: object = clfqp.DEFAULT_SETTINGS
     qp_compact: bool = False
     physics: str = "jax"

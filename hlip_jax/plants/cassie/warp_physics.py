@@ -1,4 +1,4 @@
-"""The simulated Cassie stepped by MJX's Warp implementation (``cassie.physics = "warp"``).
+"""The simulated Cassie stepped by MJX's Warp implementation (``impl.physics = "warp"``).
 
 MJX runs the same model through two implementations: MJX-JAX (``impl="jax"``, the default
 here, on every backend) and MJWarp (``impl="warp"``, needs the optional ``warp-lang``
@@ -50,7 +50,7 @@ def available() -> bool:
 def require() -> None:
     """Raise ``ValueError`` naming the field when the Warp implementation is missing."""
     if not available():
-        raise ValueError("cassie.physics = 'warp' needs the warp-lang package "
+        raise ValueError("impl.physics = 'warp' needs the warp-lang package "
                          "(pip install 'hlip_jax[warp]'); allowed without it: 'jax'")
 
 
