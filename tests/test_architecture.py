@@ -26,11 +26,7 @@ ROOT = Path(__file__).resolve().parents[1] / PACKAGE
 
 ALLOWED_PRIVATE: set = set()
 
-# Still open (issue #53, "config <-> plants"): config imports the Cassie gaits
-# (plants.cassie.gaits) and the plants import config.  Leaves when the plant owns its config.
-ALLOWED_ROOM_CYCLES = {
-    frozenset({"hlip_jax.config", "hlip_jax.plants"}),
-}
+ALLOWED_ROOM_CYCLES: set = set()
 
 
 def _module_name(path: Path) -> str:

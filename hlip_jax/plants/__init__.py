@@ -56,6 +56,22 @@ REGISTRY = {"hlip": "hlip_jax.plants.hlip_plant", "cassie": "hlip_jax.plants.cas
 NAMES = tuple(REGISTRY)
 
 
+#: the scenario tables a plant owns: table -> (module, its config class); the scenario config
+#: (:class:`hlip_jax.config.ScenarioConfig`) holds one of each, found here
+SETTINGS = {"cassie": ("hlip_jax.plants.cassie.config", "CassieConfig"),
+            "realism": ("hlip_jax.plants.cassie.config", "RealismConfig")}
+
+
+def settings_class(table: str) -> type:
+    """The config class of a plant-owned scenario table (:data:`SETTINGS`); ValueError listing
+    the tables for any other.  Its module is light (dataclasses and the gait presets)."""
+    if table not in SETTINGS:
+        raise ValueError(f"settings table {table!r} is not a plant's; known: "
+                         f"{', '.join(repr(t) for t in SETTINGS)}")
+    module, cls = SETTINGS[table]
+    return getattr(importlib.import_module(module), cls)
+
+
 def load(name: str) -> Plant:
     """The registered plant ``name``; ValueError listing the names for any other."""
     if name not in REGISTRY:

@@ -30,6 +30,11 @@ import jax.numpy as jnp
 import numpy as np
 
 
+
+#: a batch's ground kinds, each one's scene holding what the kinds before it need: "flat" the
+#: plain scene, "step" with the terrain block, "rough" with the block and the height field
+GROUND_KINDS = ("flat", "step", "rough")
+
 class StepCommand(NamedTuple):
     """What the closed loop tells the plant for the step SSP⁻_k → SSP⁻_{k+1}."""
     t: jax.Array            # time of SSP⁻_k [s]

@@ -32,7 +32,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax.config import ScenarioConfig
 from hlip_jax.plants import Plant
 from hlip_jax.plants.base import StepCommand, StepResult, clip_step, push_table
 
@@ -59,8 +58,9 @@ class State(NamedTuple):
     key: jax.Array
 
 
-def make_params(cfg: ScenarioConfig, max_pushes: int) -> Params:
-    """Per-scenario plant data; 0 in a mismatch field means "the planner's value"."""
+def make_params(cfg, max_pushes: int) -> Params:
+    """Per-scenario plant data of a scenario config ``cfg`` (:class:`hlip_jax.config.ScenarioConfig`);
+    0 in a mismatch field means "the planner's value"."""
     d, h = cfg.disturbance, cfg.hlip
     start, end, force = push_table(d.pushes, max_pushes)
     acc = force / d.mass
@@ -72,7 +72,7 @@ def make_params(cfg: ScenarioConfig, max_pushes: int) -> Params:
         reach=_reach(cfg))
 
 
-def _reach(cfg: ScenarioConfig) -> np.ndarray:
+def _reach(cfg) -> np.ndarray:
     """[length_max, width_min, width_max] [m] of the plant's steps (``disturbance.step_limits``)."""
     c = cfg.cassie
     if cfg.disturbance.step_limits:
@@ -153,7 +153,7 @@ def step(params: Params, state: State, cmd: StepCommand):
                            leg_gap=jnp.full(2, jnp.inf, p.dtype))   # point feet: no legs
 
 
-def step_span(cfg: ScenarioConfig) -> float:
+def step_span(cfg) -> float:
     """A step of the planner's H-LIP lasts T_SSP + T_DSP [s] (the plant's own timing, when it
     differs, needs no static size)."""
     return cfg.hlip.t_ssp + cfg.hlip.t_dsp

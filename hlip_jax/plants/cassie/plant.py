@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from hlip_jax.config import GROUND_KINDS
+from hlip_jax.plants.base import GROUND_KINDS
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax.plants import Plant
 from hlip_jax.plants.base import StepCommand, StepResult, push_table
@@ -42,7 +42,7 @@ SENSING_STREAM = 0x5E7501
 
 
 class Gait(NamedTuple):
-    """Per-scenario gait parameters (scalars; see :class:`hlip_jax.config.CassieConfig` for
+    """Per-scenario gait parameters (scalars; see :class:`hlip_jax.plants.cassie.config.CassieConfig` for
     meanings and units) and the CLF-QP gains they imply."""
     clearance: jax.Array
     strike: jax.Array
@@ -65,14 +65,14 @@ _GAIT_CACHE: dict = {}
 
 
 def make_gait(cfg=None) -> Gait:
-    """:class:`Gait` (numpy) of a :class:`hlip_jax.config.CassieConfig` (defaults if None).
+    """:class:`Gait` (numpy) of a :class:`hlip_jax.plants.cassie.config.CassieConfig` (defaults if None).
 
     Output frequencies per row of :mod:`outputs`: pelvis orientation (0..2) ``omega_pelvis``,
     COM height (3) ``omega_height``, both feet's position and sole slope (6..13)
     ``omega_swing``, foot yaw (14, 15) ``omega_yaw``; rows 4, 5 (horizontal COM) are never
     active while walking (their frequency is the height's, for a well-defined CLF).  QP
     weights 1 except the pelvis rows (``weight_pelvis``); torque-change weight ``w_chatter``."""
-    from hlip_jax.config import CassieConfig
+    from hlip_jax.plants.cassie.config import CassieConfig
 
     cfg = CassieConfig() if cfg is None else cfg
     if cfg in _GAIT_CACHE:
@@ -147,7 +147,7 @@ def make_params(cfg, n_push: int, t_step: float = 0.0, non_ideal: bool = False,
     that every chunk has one shape).  ``non_ideal``: the batch has a robot that departs from
     the ideal plant (``cfg.realism``), so every robot carries realism data; otherwise none
     does, and a scenario that departs is an error.  ``ground``: the batch's ground kind
-    (:data:`hlip_jax.config.GROUND_KINDS`; "step": every robot walks on the scene with the terrain block,
+    (:data:`hlip_jax.plants.base.GROUND_KINDS`; "step": every robot walks on the scene with the terrain block,
     "rough": with the block and the height field)."""
     if not non_ideal and cfg.realism != type(cfg.realism)():
         raise ValueError(f"realism: scenario {cfg.name!r} departs from the ideal plant; build "

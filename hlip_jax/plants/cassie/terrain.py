@@ -22,7 +22,7 @@ off the patch the ground ends.  Without rough ground the field lies buried at z 
 Both bodies, ``terrain`` (the box) and ``rough`` (the field), are appended after the robot, so
 no index of the robot's bodies, joints, geoms or sites moves.  Only their positions and the
 field's heights change between scenarios, so one compiled program serves every step height and
-every rough draw (MJX takes them as model arrays).  A batch's ground is one of ``hlip_jax.config.GROUND_KINDS``
+every rough draw (MJX takes them as model arrays).  A batch's ground is one of ``hlip_jax.plants.base.GROUND_KINDS``
 (``rollout.Shapes.terrain``): "flat", no terrain at all (the plain scene, bit for bit); "step",
 the block alone (a batch with steps walks the same scene whether or not the field exists);
 "rough", the block and the field, the unused one buried.
