@@ -267,6 +267,31 @@ def gauge(S, points) -> np.ndarray:
     return out.reshape(x.shape[:-1])
 
 
+def gauge_within(S, points, level: float) -> np.ndarray:
+    """g_S(x) ≤ ``level`` per point (bool, shape (...,)), the same decision as
+    ``gauge(S, points) <= level``.  For a zonotope (or an MRPI bracket's) with prefix facets
+    (:class:`Zonotope`: the complete facets of its leading terms Z₀, with Z₀'s half-widths)
+    most points are decided on those F₀ facets alone: outside where one of them already gives a
+    gauge above ``level`` (a subset of facets bounds the maximum from below), inside where
+    x ∈ c + level (Z₀ − c) ⊆ c + level (Z − c); only the rest take every facet."""
+    z = S.outer if isinstance(S, MRPI) else S
+    x = as_float64(points)
+    if not (isinstance(z, Zonotope) and z.prefix_offsets is not None and z.normals is not None):
+        return gauge(S, x) <= level
+    flat = x.reshape(-1, x.shape[-1])
+    F0 = len(z.prefix_offsets)
+    N0, c = as_float64(z.normals)[:F0], as_float64(z.center)
+    tiny = np.finfo(float).tiny
+    y = np.abs((flat - c) @ N0.T)                                     # (P, F₀)
+    lower = np.max(y / np.maximum(as_float64(z.offsets)[:F0], tiny), axis=-1)
+    in_z0 = np.max(y / np.maximum(as_float64(z.prefix_offsets), tiny), axis=-1) <= level
+    out = in_z0 & (lower <= level)
+    rest = np.flatnonzero((lower <= level) & ~in_z0)
+    if rest.size:
+        out[rest] = gauge(z, flat[rest]) <= level
+    return out.reshape(x.shape[:-1])
+
+
 #: (points × facets) entries per block of :func:`gauge` (8 MB of float64)
 _GAUGE_BLOCK = 1 << 20
 
@@ -289,8 +314,8 @@ class Scaled(NamedTuple):
         return dc + self.s * (as_float64(self.base.support(D)) - dc)
 
     def contains(self, points, tol: float = 1e-9):
-        """g_S(x) ≤ s (1 + tol) per point (:func:`gauge`)."""
-        return gauge(self.base, points) <= self.s * (1.0 + tol)
+        """g_S(x) ≤ s (1 + tol) per point (:func:`gauge`, :func:`gauge_within`)."""
+        return gauge_within(self.base, points, self.s * (1.0 + tol))
 
     def volume(self):
         return float(self.base.volume()) * self.s ** self.dim

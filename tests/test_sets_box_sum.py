@@ -100,3 +100,20 @@ def test_vertices_survive_a_qhull_merge_failure(monkeypatch):
     V = sets.vertices(z)
     assert scipy.spatial.ConvexHull(V).volume == pytest.approx(z.volume(), rel=1e-9)
     assert np.all(np.asarray(z.contains(V, 1e-9)))
+
+
+def test_gauge_within_decides_as_the_gauge_does():
+    # the prefix facets decide most points, the rest take every facet: the same decision as
+    # gauge <= level on a slow 3-state mRPI zonotope with prefix facets (exact: no tolerance)
+    A = np.array([[0.97, 0.1, 0.0], [-0.2, 0.6, 0.1], [0.0, 0.3, 0.5]])
+    r = np.array([0.01, 0.02, 0.03])
+    E = sets.mrpi(A, sets.Box(-r, r))
+    assert E.outer.prefix_offsets is not None
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(4000, 3)) * np.abs(sets.vertices(E)).max(axis=0) * 0.7
+    for level in (0.5, 1.0, 1.3):
+        want = sets.gauge(E, pts) <= level
+        assert np.array_equal(sets.gauge_within(E, pts, level), want)
+        assert 0 < want.sum() < len(pts)
+    scaled = sets.Scaled(E, 0.8)
+    assert np.array_equal(scaled.contains(pts, 1e-6), sets.gauge(E, pts) <= 0.8 * (1 + 1e-6))
