@@ -482,6 +482,22 @@ def test_chunk_metrics_fall_back_to_this_process_without_workers(monkeypatch):
                                       np.array(list(b.values()), float))
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_progress_output_does_not_change_the_cassie_numbers(tmp_path):
+    """The same on the Cassie plant (two robots, 0.6 s, one process): with progress output and
+    without, the chunks are the same bytes."""
+    import io
+    text = ('[base]\nplant = "cassie"\nduration = 0.6\n[[paths]]\nshape = "line"\n'
+            '[grid.product]\nseed = [1, 2]\n')
+    sw = sweep.parse_sweep(text)
+    runner.run_sweep(sw, tmp_path / "loud", progress=True, stream=io.StringIO())
+    runner.run_sweep(sw, tmp_path / "quiet", progress=False)
+    loud, quiet = store.chunk_files(tmp_path / "loud"), store.chunk_files(tmp_path / "quiet")
+    assert len(loud) == len(quiet) == 1
+    assert loud[0].read_bytes() == quiet[0].read_bytes()
+
+
 def test_progress_output_does_not_change_the_numbers(tmp_path):
     """The real H-LIP closed loop with progress output and with --quiet's none: the chunks are
     the same bytes (the loop runs the same segmented program either way; before, --quiet ran
