@@ -1018,13 +1018,13 @@ def main(argv=None) -> int:
     from hlip_jax.sweep import SweepError
 
     args = build_parser().parse_args(argv)
-    xla_flags.apply()        # reproducible GPU runs (before JAX's backend starts)
     handler = {"run": cmd_run, "report": cmd_report, "list": cmd_list, "show": cmd_show,
                "bench": cmd_bench, "ticks": cmd_ticks, "coverage": cmd_coverage,
                "s2s": cmd_s2s, "identify": cmd_identify, "wbox": cmd_wbox,
                "whull": cmd_whull,
                "render": cmd_render}[args.cmd]
     try:
+        xla_flags.apply()    # reproducible GPU runs (before JAX's backend starts)
         with _sigterm_unwinds():
             return handler(args)
     except (UserError, SweepError, StoreError, ReportError) as err:

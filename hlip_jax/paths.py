@@ -451,7 +451,11 @@ def _fail(shape, name, value, spec: ParamSpec, why=None):
         else:
             kind = "an integer" if spec.kind == "int" else "a number"
             why = f"allowed: {kind} in [{spec.lo:g}, {spec.hi:g}]{unit}"
-    raise ValueError(f"path shape {shape!r}: parameter {name!r} = {value!r} is invalid; {why}"
+    from hlip_jax.sweep import FMT_MAX_CHARS, _fmt
+    shown = repr(value)
+    if len(shown) > FMT_MAX_CHARS:      # a long value cut short by the sweep's formatter
+        shown = _fmt(value)
+    raise ValueError(f"path shape {shape!r}: parameter {name!r} = {shown} is invalid; {why}"
                      f" ({spec.doc})")
 
 

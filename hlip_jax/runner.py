@@ -10,6 +10,7 @@ import contextlib
 import dataclasses
 import functools
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -235,7 +236,9 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
                 with_coverage, resolved) -> RunResult:
     """:func:`run_sweep` with the directory lock held."""
     n = len(configs)
-    old = store.read_manifest(out) if (out / store.MANIFEST).is_file() else None
+    # lexists, not is_file: a manifest.json that is a FIFO, a directory or a dangling link is
+    # named by read_manifest ("not a manifest"), never taken for a directory without one
+    old = store.read_manifest(out) if os.path.lexists(out / store.MANIFEST) else None
     if batch is None:
         batch = int(old["batch"]) if (resume and old is not None) else default_batch(n)
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
@@ -261,8 +264,9 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
         (out / store.CHUNK_DIR).mkdir(parents=True, exist_ok=True)
         store.write_manifest(out, man)
     except OSError as err:
-        raise store.StoreError(f"--out {out}: cannot write the results directory: "
-                         f"{err.strerror or err}") from None
+        where = f" ({err.filename})" if err.filename else ""
+        raise store.StoreError(f"--out {out}: cannot write the results directory{where}: "
+                               f"{err.strerror or err}") from None
 
     sim = simulate if simulate is not None else _default_simulate(configs)
     t0 = time.monotonic()

@@ -85,6 +85,7 @@ import hashlib
 import itertools
 import json
 import math
+import os
 import re
 import tomllib
 import zlib
@@ -179,14 +180,19 @@ def printable(text: str) -> str:
 
 
 def _fmt(v) -> str:
-    if isinstance(v, str):
-        return repr(v)
+    """A user's value for a message, at most :data:`FMT_MAX_CHARS` characters."""
     if isinstance(v, float):
         return f"{v:g}"
     if isinstance(v, (dict, list)):
         s = json.dumps(v, default=str)
         return s if len(s) <= 60 else s[:57] + "..."
-    return repr(v)
+    s = repr(v)
+    return s if len(s) <= FMT_MAX_CHARS else s[:FMT_MAX_CHARS - 3] + "..."
+
+
+#: the most characters of a user's value that a message shows (:func:`_fmt`): a value of
+#: megabytes (a string, an array) never makes a message of megabytes
+FMT_MAX_CHARS = 200
 
 
 def _tname(v) -> str:
@@ -224,7 +230,7 @@ def check_scalar(value, kind: str, meta: dict, where: str):
         if meta.get("choices") and value not in meta["choices"]:
             near = difflib.get_close_matches(value, list(meta["choices"]), n=1)
             hint = f"; did you mean {near[0]!r}?" if near else ""
-            raise SweepError(f"{where}: {value!r} is not allowed; allowed: "
+            raise SweepError(f"{where}: {_fmt(value)} is not allowed; allowed: "
                              f"{_allowed(meta, kind)}{hint}")
         return value
     if kind == "bool":
@@ -370,7 +376,7 @@ def _check_s2s(cfg: C.ScenarioConfig, where: str) -> None:
     s, h = cfg.s2s, cfg.hlip
     if s.model == "hlip":
         if s.file:
-            raise SweepError(f"{where}: s2s.file: {s.file!r} is read with s2s.model = "
+            raise SweepError(f"{where}: s2s.file: {_fmt(s.file)} is read with s2s.model = "
                              "'identified' only; allowed with s2s.model = 'hlip': ''")
         return
     from hlip_jax import s2s_model
@@ -412,7 +418,7 @@ def _check_w_shape(m: C.MPCConfig, where: str) -> None:
     box = [f"w_{q}_{i}" for i in (1, 2) for q in "cpv"]
     if m.w_shape == "box":
         if m.w_hull_file:
-            raise SweepError(f"{where}: mpc.w_hull_file: {m.w_hull_file!r} is read with "
+            raise SweepError(f"{where}: mpc.w_hull_file: {_fmt(m.w_hull_file)} is read with "
                              "mpc.w_shape = 'hull' only; allowed with w_shape = 'box': ''")
         return
     for f in box:
@@ -1125,8 +1131,13 @@ def load_sweep(path, *, plant: str | None = None, duration: float | None = None,
 
 
 def _read_sweep_file(p: Path, source: str) -> str:
-    if not p.is_file():
-        raise SweepError(f"{source}: sweep file not found" + (" (it is a directory)" if p.is_dir() else ""))
+    if not p.is_file():         # stat only: a FIFO or a device is never opened (no hang)
+        if p.is_dir():
+            raise SweepError(f"{source}: sweep file not found (it is a directory)")
+        if os.path.exists(p):
+            raise SweepError(f"{source}: not a regular file (a FIFO, a device or a socket); "
+                             "a sweep file is a regular TOML file")
+        raise SweepError(f"{source}: sweep file not found")
     try:
         return p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as err:
@@ -1183,10 +1194,10 @@ def _resolve_extends(p: Path, source: str, chain: tuple) -> tuple[dict, str]:
     q = p.parent / (parent if parent.endswith(".toml") else parent + ".toml")
     key = q.resolve()
     if key in chain or key == p.resolve():
-        raise SweepError(f"{source}: extends: {parent!r} extends this file again (a cycle)")
+        raise SweepError(f"{source}: extends: {_fmt(parent)} extends this file again (a cycle)")
     if len(chain) + 1 >= MAX_EXTENDS:
         raise SweepError(f"{source}: extends: more than {MAX_EXTENDS} files in the chain")
-    where = f"{source}: extends {parent!r}"
+    where = f"{source}: extends {_fmt(parent)}"
     base_doc, base_text = _resolve_extends(q, where, chain + (p.resolve(),))
     for k in base_doc:          # a file that is not a sweep is named, not the one extending it
         if k not in TOP_KEYS:

@@ -34,7 +34,6 @@ exit 2.
 from __future__ import annotations
 
 import os
-import sys
 from typing import MutableMapping
 
 FLAG = "--xla_gpu_deterministic_ops"
@@ -120,12 +119,12 @@ def apply(environ: MutableMapping[str, str] = os.environ, cores: int | None = No
     """Set ``environ`` as the module doc says (call before the first JAX computation: XLA
     reads the variables when the backend starts).  ``cores`` defaults to
     :func:`usable_cores`.  A user's ``XLA_FLAGS`` that XLA would abort on (:func:`problem`)
-    is refused as argparse refuses a bad option: one line on stderr, ``SystemExit(2)``,
-    ``environ`` left as it was."""
+    is refused with the CLI's usage error (:class:`hlip_jax.cli.UserError`, which ``main``
+    reports as one line on stderr, exit 2), ``environ`` left as it was."""
     why = problem(environ.get("XLA_FLAGS", ""))
     if why is not None:
-        print(f"hlip-sweep: error: {why}", file=sys.stderr)
-        raise SystemExit(2)
+        from hlip_jax.cli import UserError      # here: the CLI imports this module
+        raise UserError(why)
     cores = usable_cores() if cores is None else cores
     flags = with_deterministic_ops(environ.get("XLA_FLAGS", ""))
     if cores > 1:

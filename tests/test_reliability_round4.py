@@ -12,6 +12,7 @@ import csv
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hlip_jax import store, xla_flags
@@ -58,9 +59,10 @@ def test_a_device_count_xla_would_abort_on_is_refused(value):
     assert why is not None and why.startswith("XLA_FLAGS: ") and "allowed: an integer" in why
     assert "\n" not in why and "\x1b" not in why
     env = {"XLA_FLAGS": flags}
-    with pytest.raises(SystemExit) as ex:
+    from hlip_jax.cli import UserError
+    with pytest.raises(UserError) as ex:      # the CLI's usage error: one line, exit 2
         xla_flags.apply(env, cores=2)
-    assert ex.value.code == 2 and env == {"XLA_FLAGS": flags}     # nothing set
+    assert str(ex.value) == why and env == {"XLA_FLAGS": flags}     # nothing set
 
 
 def test_good_xla_flags_pass_and_a_bad_boolean_is_refused():
@@ -73,10 +75,15 @@ def test_good_xla_flags_pass_and_a_bad_boolean_is_refused():
 
 
 def test_the_cli_refuses_a_bad_device_count_in_one_line(monkeypatch, capsys):
+    """xla_flags.apply printed its error and raised SystemExit(2) itself, before main's error
+    handling: it now raises the CLI's usage error, which main reports (one line, exit 2)."""
     monkeypatch.setenv("XLA_FLAGS", f"{xla_flags.DEVICES_FLAG}=\x1b[31mabc")
     code, out, err = cli(capsys, "list")
     line = _one_line_error(code, err)
     assert "XLA_FLAGS" in line and "allowed" in line and "\x1b" not in line and out == ""
+    assert err.count("hlip-sweep: error: ") == 1
+    from hlip_jax import cli as cli_mod
+    assert cli_mod.main(["list"]) == 2        # returned by main, not raised as SystemExit
 
 
 # ------------------------------------------------------------------------------------------
@@ -398,3 +405,77 @@ def test_a_manifest_that_is_not_a_regular_file_is_named_as_such(done, capsys):
     os.mkfifo(done / "manifest.json")
     code, _, err = cli(capsys, "report", done)
     assert "manifest.json: not a manifest (a regular file" in _one_line_error(code, err)
+
+
+# ------------------------------------------------------------------------------------------
+# the fourth round's open cases
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero"])
+def test_a_sweep_file_that_is_not_a_regular_file_is_named_as_such(tmp_path, capsys, kind):
+    """`extends` naming a FIFO, or a sweep file that is a link to /dev/zero, said 'sweep file
+    not found': it now says 'not a regular file', one line, exit 2, without opening it."""
+    if kind == "fifo":
+        os.mkfifo(tmp_path / "parent.toml")
+        p = tmp_path / "child.toml"
+        p.write_text('name = "child"\nextends = "parent"\n')
+        want = "extends 'parent': not a regular file"
+    else:
+        p = tmp_path / "zero.toml"
+        p.symlink_to("/dev/zero")
+        want = f"{p}: not a regular file"
+    code, out, err = cli(capsys, "show", p)       # a FIFO opened would block here
+    line = _one_line_error(code, err)
+    assert want in line and "not found" not in line, line
+    (tmp_path / "gone.toml").symlink_to(tmp_path / "missing.toml")
+    code, _, err = cli(capsys, "show", tmp_path / "gone.toml")
+    assert "sweep file not found" in _one_line_error(code, err)
+
+
+def test_a_huge_value_is_shown_short(tmp_path, capsys):
+    """A polyline of 300,000 waypoints out of range gave a one-line error of 5 MB (the list
+    repeated): the value shown is cut to a few hundred characters."""
+    from hlip_jax import paths, sweep
+    pts = [[2e4, float(i)] for i in range(300_000)]
+    with pytest.raises(ValueError) as ex:
+        paths.make_path("polyline", waypoints=pts)
+    msg = str(ex.value)
+    assert "'waypoints'" in msg and "allowed" in msg and len(msg) < 1000, len(msg)
+    with pytest.raises(ValueError) as ex:
+        paths.make_path("polyline", waypoints=np.full((300_000, 2), 2e4))
+    assert len(str(ex.value)) < 1000
+    assert len(sweep._fmt("x" * 10**6)) <= sweep.FMT_MAX_CHARS
+    p = tmp_path / "big.toml"
+    p.write_text('name = "big"\n[base]\nduration = 1.0\n[[paths]]\nshape = "polyline"\n'
+                 "waypoints = [" + ", ".join(f"[{x:g}, {y:g}]" for x, y in pts) + "]\n")
+    code, _, err = cli(capsys, "show", p)
+    line = _one_line_error(code, err)
+    assert "waypoints" in line and len(line) < 2000, len(line)
+    p.write_text('name = "big"\n[base]\nplant = "' + "h" * 100_000 + '"\n[[paths]]\n'
+                 'shape = "line"\n')
+    code, _, err = cli(capsys, "show", p)
+    assert len(_one_line_error(code, err)) < 2000
+
+
+def test_a_chunks_file_is_named_on_resume(done, tiny_sweep, capsys):
+    """`chunks` a regular file, `run --resume`: 'cannot write the results directory: File
+    exists' did not say which file; the message now names it."""
+    import shutil
+    shutil.rmtree(done / "chunks")
+    (done / "chunks").write_text("not a folder")
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", done, "--batch", "1", "--no-report",
+                       "--quiet", "--resume")
+    line = _one_line_error(code, err)
+    assert "cannot write the results directory" in line and str(done / "chunks") in line, line
+
+
+def test_a_fifo_manifest_is_named_by_run(done, tiny_sweep, capsys):
+    """`manifest.json` a FIFO, `run --out DIR`: 'not a results directory (no manifest.json)';
+    run now names it as report does, without opening the FIFO."""
+    (done / "manifest.json").unlink()
+    os.mkfifo(done / "manifest.json")
+    for extra in ((), ("--resume",)):
+        code, _, err = cli(capsys, "run", tiny_sweep, "--out", done, "--batch", "1",
+                           "--no-report", "--quiet", *extra)
+        line = _one_line_error(code, err)
+        assert "manifest.json: not a manifest (a regular file" in line, line
