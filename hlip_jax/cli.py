@@ -1031,7 +1031,7 @@ def main(argv=None) -> int:
         return _fail(str(err), EXIT_USAGE)
     except RecursionError:
         return _fail("input nested too deeply to process (recursion limit)", EXIT_USAGE)
-    except xla_flags.PoolTooSmall as err:
+    except (xla_flags.PoolTooSmall, xla_flags.FlagsError) as err:
         return _fail(str(err), EXIT_USAGE)
     except BrokenPipeError:     # the reader of stdout went away (`hlip-sweep list | head`)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

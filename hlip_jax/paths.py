@@ -46,6 +46,8 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from hlip_jax.fields import FMT_MAX_CHARS, show_value
+
 __all__ = [
     "Path", "Reference", "ParamSpec", "SpeedProfile", "PARAM_SPECS", "SHAPES",
     "reference", "make_path", "validate_params", "speed_profile", "stack_paths",
@@ -451,10 +453,9 @@ def _fail(shape, name, value, spec: ParamSpec, why=None):
         else:
             kind = "an integer" if spec.kind == "int" else "a number"
             why = f"allowed: {kind} in [{spec.lo:g}, {spec.hi:g}]{unit}"
-    from hlip_jax.sweep import FMT_MAX_CHARS, _fmt
     shown = repr(value)
-    if len(shown) > FMT_MAX_CHARS:      # a long value cut short by the sweep's formatter
-        shown = _fmt(value)
+    if len(shown) > FMT_MAX_CHARS:      # a long value cut short as every message cuts it
+        shown = show_value(value)
     raise ValueError(f"path shape {shape!r}: parameter {name!r} = {shown} is invalid; {why}"
                      f" ({spec.doc})")
 

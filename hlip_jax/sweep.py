@@ -95,6 +95,8 @@ from typing import Any, Callable
 
 from hlip_jax import config as C
 from hlip_jax import impl as impl_mod
+from hlip_jax.fields import FMT_MAX_CHARS  # noqa: F401  (the messages' cap)
+from hlip_jax.fields import show_value as _fmt
 from hlip_jax import plants
 from hlip_jax.analysis import settings as analysis_settings
 from hlip_jax.analysis.settings import AnalysisConfig
@@ -177,22 +179,6 @@ def printable(text: str) -> str:
     (``\\x1b``): a sweep's name, description or keys never reach a terminal as raw control
     sequences."""
     return "".join(c if c in "\n\t" or c.isprintable() else repr(c)[1:-1] for c in str(text))
-
-
-def _fmt(v) -> str:
-    """A user's value for a message, at most :data:`FMT_MAX_CHARS` characters."""
-    if isinstance(v, float):
-        return f"{v:g}"
-    if isinstance(v, (dict, list)):
-        s = json.dumps(v, default=str)
-        return s if len(s) <= 60 else s[:57] + "..."
-    s = repr(v)
-    return s if len(s) <= FMT_MAX_CHARS else s[:FMT_MAX_CHARS - 3] + "..."
-
-
-#: the most characters of a user's value that a message shows (:func:`_fmt`): a value of
-#: megabytes (a string, an array) never makes a message of megabytes
-FMT_MAX_CHARS = 200
 
 
 def _tname(v) -> str:

@@ -115,16 +115,20 @@ def problem(flags: str) -> str | None:
     return None
 
 
+class FlagsError(ValueError):
+    """A user's ``XLA_FLAGS`` that XLA would abort on (the message names the flag and what is
+    allowed, :func:`problem`)."""
+
+
 def apply(environ: MutableMapping[str, str] = os.environ, cores: int | None = None) -> None:
     """Set ``environ`` as the module doc says (call before the first JAX computation: XLA
     reads the variables when the backend starts).  ``cores`` defaults to
     :func:`usable_cores`.  A user's ``XLA_FLAGS`` that XLA would abort on (:func:`problem`)
-    is refused with the CLI's usage error (:class:`hlip_jax.cli.UserError`, which ``main``
-    reports as one line on stderr, exit 2), ``environ`` left as it was."""
+    is refused with :class:`FlagsError` (the CLI reports it as one line on stderr, exit 2),
+    ``environ`` left as it was."""
     why = problem(environ.get("XLA_FLAGS", ""))
     if why is not None:
-        from hlip_jax.cli import UserError      # here: the CLI imports this module
-        raise UserError(why)
+        raise FlagsError(why)
     cores = usable_cores() if cores is None else cores
     flags = with_deterministic_ops(environ.get("XLA_FLAGS", ""))
     if cores > 1:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlip_jax import store, xla_flags
+from hlip_jax import fields, store, xla_flags
 from test_cli import TINY, _one_line_error, _run_ok, cli, fake_loop  # noqa: F401 (fixture)
 
 
@@ -59,8 +59,7 @@ def test_a_device_count_xla_would_abort_on_is_refused(value):
     assert why is not None and why.startswith("XLA_FLAGS: ") and "allowed: an integer" in why
     assert "\n" not in why and "\x1b" not in why
     env = {"XLA_FLAGS": flags}
-    from hlip_jax.cli import UserError
-    with pytest.raises(UserError) as ex:      # the CLI's usage error: one line, exit 2
+    with pytest.raises(xla_flags.FlagsError) as ex:   # the CLI: one line, exit 2
         xla_flags.apply(env, cores=2)
     assert str(ex.value) == why and env == {"XLA_FLAGS": flags}     # nothing set
 
@@ -444,7 +443,7 @@ def test_a_huge_value_is_shown_short(tmp_path, capsys):
     with pytest.raises(ValueError) as ex:
         paths.make_path("polyline", waypoints=np.full((300_000, 2), 2e4))
     assert len(str(ex.value)) < 1000
-    assert len(sweep._fmt("x" * 10**6)) <= sweep.FMT_MAX_CHARS
+    assert len(fields.show_value("x" * 10**6)) <= fields.FMT_MAX_CHARS
     p = tmp_path / "big.toml"
     p.write_text('name = "big"\n[base]\nduration = 1.0\n[[paths]]\nshape = "polyline"\n'
                  "waypoints = [" + ", ".join(f"[{x:g}, {y:g}]" for x, y in pts) + "]\n")
