@@ -95,12 +95,11 @@ from typing import Any, Callable
 
 from hlip_jax import config as C
 from hlip_jax import impl as impl_mod
-from hlip_jax.fields import FMT_MAX_CHARS  # noqa: F401  (the messages' cap)
-from hlip_jax.fields import show_value as _fmt
 from hlip_jax import plants
 from hlip_jax.analysis import settings as analysis_settings
 from hlip_jax.analysis.settings import AnalysisConfig
-from hlip_jax.plants.cassie import gaits
+from hlip_jax.fields import FMT_MAX_CHARS  # noqa: F401  (the messages' cap)
+from hlip_jax.fields import show_value as _fmt
 
 __all__ = [
     "SweepError", "Axis", "Sweep", "load_sweep", "parse_sweep", "config_to_dict",
@@ -689,10 +688,11 @@ def _deep_merge(base: dict, over: dict) -> dict:
 
 
 def _with_gait(raw: dict, where: str) -> dict:
-    """``raw`` with its Cassie gait preset's fields filled in (:func:`gaits.fill`)."""
+    """``raw`` with its plant presets' fields filled in (the Cassie gait,
+    :func:`hlip_jax.plants.with_presets`)."""
     try:
-        return gaits.fill(raw)
-    except gaits.UnknownGait as err:
+        return plants.with_presets(raw)
+    except ValueError as err:
         raise SweepError(f"{where}: {err}") from None
 
 

@@ -72,6 +72,24 @@ def settings_class(table: str) -> type:
     return getattr(importlib.import_module(module), cls)
 
 
+#: modules whose ``fill(raw)`` fills a scenario table's unset fields from the preset it names
+#: (the Cassie gaits: :func:`hlip_jax.plants.cassie.gaits.fill`), applied in this order
+PRESET_FILLERS = ("hlip_jax.plants.cassie.gaits",)
+
+
+def with_presets(raw: dict) -> dict:
+    """The scenario table ``raw`` (a sweep file's nested settings) with every registered
+    preset's fields that it does not set filled in; ValueError with a one-line message naming
+    the field for a preset that does not exist."""
+    for module in PRESET_FILLERS:
+        m = importlib.import_module(module)
+        try:
+            raw = m.fill(raw)
+        except KeyError as err:          # an unknown preset: its message lists the known ones
+            raise ValueError(str(err)) from None
+    return raw
+
+
 def load(name: str) -> Plant:
     """The registered plant ``name``; ValueError listing the names for any other."""
     if name not in REGISTRY:
