@@ -701,7 +701,12 @@ def _derive_seed(seed: int, name: str) -> int:
 
 
 def _value_label(v) -> str:
-    return f"{v:g}" if isinstance(v, float) else str(v)
+    """A grid value in a scenario's name: %g for a float when it names the value exactly, else
+    its full repr (two values that %g prints alike get different names)."""
+    if isinstance(v, float):
+        short = f"{v:g}"
+        return short if float(short) == v else repr(v)
+    return str(v)
 
 
 def parse_sweep(text: str, *, source: str = "<string>", plant: str | None = None,

@@ -81,3 +81,20 @@ def test_the_manifest_records_the_profile_and_gpu_is_refused_on_a_cpu(tmp_path):
         runner.run_sweep(sweep.parse_sweep(CASSIE + '[impl]\nprofile = "gpu"\n'),
                          tmp_path / "b", progress=False, simulate=fake_simulate)
     assert not (tmp_path / "b").exists()
+
+
+def test_an_implementation_setting_on_the_hlip_plant_is_refused():
+    # it would do nothing there (and change the run's identity): one line naming the field
+    with pytest.raises(sweep.SweepError, match=re.escape("impl.physics: 'warp' chooses how the "
+                                                         "Cassie robot is computed")):
+        sweep.parse_sweep('[[paths]]\nshape = "line"\n[impl]\nphysics = "warp"\n')
+    with pytest.raises(sweep.SweepError, match="impl.physics"):
+        sweep.parse_sweep('[[paths]]\nshape = "line"\n', physics="warp")
+
+
+def test_grid_values_that_print_alike_get_different_names():
+    sw = sweep.parse_sweep('[[paths]]\nshape = "line"\n[grid.product]\n'
+                           '"mpc.alpha" = [0.01, 0.01000000000000001, 0.25]\n')
+    names = [c.name for c in sw.scenarios]
+    assert len(set(names)) == 3 and names[0].endswith("mpc.alpha=0.01")
+    assert names[2].endswith("mpc.alpha=0.25")

@@ -108,6 +108,11 @@ def check(cfg) -> Optional[str]:
             if getattr(cfg.realism, f.name) != getattr(r0, f.name):
                 return (f"realism.{f.name}: {getattr(cfg.realism, f.name)!r} models the Cassie robot; "
                         f"allowed with plant = 'hlip': {getattr(r0, f.name)!r}")
+        i0 = type(cfg.impl)()
+        for f in dataclasses.fields(i0):
+            if getattr(cfg.impl, f.name) != getattr(i0, f.name):
+                return (f"impl.{f.name}: {getattr(cfg.impl, f.name)!r} chooses how the Cassie "
+                        f"robot is computed; allowed with plant = 'hlip': {getattr(i0, f.name)!r}")
     if cfg.plant == "cassie":
         d0 = type(d)()
         for f in HLIP_ONLY_DISTURBANCES:
