@@ -401,6 +401,8 @@ def _simulate_override():
 
 def _load(args):
     from hlip_jax import sweep
+    if not args.sweep:
+        raise UserError("SWEEP: empty; give the path of a sweep file (e.g. sweeps/paper.toml)")
     return sweep.load_sweep(resolve_sweep(args.sweep), plant=args.plant,
                             duration=args.duration, limit=args.limit, physics=args.physics)
 
@@ -770,7 +772,13 @@ def cmd_ticks(args) -> int:
 
 def _results_dir(text: str) -> Path:
     """``text`` as a results directory; UserError when no such directory exists."""
+    if not text:
+        raise UserError("DIR: empty; give the results directory that `hlip-sweep run` wrote")
     d = Path(text)
+    if os.path.lexists(d) and not d.is_dir():
+        raise UserError(f"{d}: not a directory; give the results directory that holds it "
+                        f"({d.parent})" if d.name == "manifest.json" else
+                        f"{d}: not a directory; give a results directory")
     if not d.is_dir():
         raise UserError(f"{d}: results directory not found")
     return d

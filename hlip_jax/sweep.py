@@ -525,6 +525,9 @@ def _resolve_field(field: str, where: str) -> list:
             raise SweepError(f"{where}.{field!r}: {parts[1]!r} cannot be swept; add [[paths]] "
                              f"entries instead")
         return parts
+    if parts[0] == "base" and len(parts) > 1:
+        raise SweepError(f"{where}.{field!r}: grid fields name a scenario's fields without "
+                         f"'base.'; did you mean {'.'.join(parts[1:])!r}?")
     if parts[0] == "impl" or (parts[0] == "cassie" and len(parts) == 2 and parts[1] in IMPL_FIELDS):
         raise SweepError(f"{where}.{field!r}: an implementation setting cannot be swept (one "
                          f"value per sweep, in its [impl] table)")

@@ -580,7 +580,7 @@ def test_command_line_mistakes(args, frag, tiny_sweep, capsys):
 
 
 @pytest.mark.parametrize("setup,frag", [
-    ("file", "results directory not found"),
+    ("file", "not a directory; give a results directory"),
     ("empty", "not a results directory"),
     ("bad_manifest", "unreadable manifest"),
 ])

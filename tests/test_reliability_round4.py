@@ -478,3 +478,26 @@ def test_a_fifo_manifest_is_named_by_run(done, tiny_sweep, capsys):
                            "--no-report", "--quiet", *extra)
         line = _one_line_error(code, err)
         assert "manifest.json: not a manifest (a regular file" in line, line
+
+
+def test_empty_paths_and_a_file_for_a_directory_are_named(tmp_path, capsys):
+    # fifth round #35 and #38: `report FILE` said "results directory not found" for a file
+    # that exists, `show ''` named '.'
+    from hlip_jax import cli
+    f = tmp_path / "manifest.json"
+    f.write_text("{}")
+    assert cli.main(["report", str(f)]) == 2
+    err = capsys.readouterr().err
+    assert "not a directory" in err and str(tmp_path) in err and err.count("\n") == 1
+    assert cli.main(["show", ""]) == 2
+    err = capsys.readouterr().err
+    assert "SWEEP: empty" in err and err.count("\n") == 1
+    assert cli.main(["report", ""]) == 2
+    assert "DIR: empty" in capsys.readouterr().err
+
+
+def test_a_grid_field_written_with_base_is_pointed_to_its_name():
+    # fifth round #11: "base.duration" as a grid field suggested 'cassie'
+    from hlip_jax import sweep
+    with pytest.raises(sweep.SweepError, match="without 'base.'; did you mean 'duration'"):
+        sweep.parse_sweep('[[paths]]\nshape = "line"\n[grid.product]\n"base.duration" = [1.0, 2.0]\n')
