@@ -246,11 +246,9 @@ _BENCH_VARIANTS = (
 def _field_table(field: str) -> tuple:
     """(table name, config class) that holds a bench variant's field: ``impl`` for the
     implementation switches, ``cassie`` for the controller's own."""
-    import dataclasses
-
     from hlip_jax import config
-    impl = {f.name for f in dataclasses.fields(config.ImplConfig)}
-    return ("impl", config.ImplConfig) if field in impl else ("cassie", config.CassieConfig)
+    return (("impl", config.ImplConfig) if field in config.IMPL_FIELDS
+            else ("cassie", config.CassieConfig))
 
 
 def _field_choices(field: str) -> tuple:

@@ -158,7 +158,7 @@ class PathConfig:
 @dataclass(frozen=True)
 class ImplConfig:
     """How a scenario is computed, never what it computes: the implementation switches of the
-    Cassie closed loop (ignored by the H-LIP plant).  A sweep sets them in its ``[impl]``
+    Cassie closed loop (the H-LIP plant takes only the defaults).  A sweep sets them in its ``[impl]``
     table, beside the profile that fills the ones it leaves unset for the backend
     (:mod:`hlip_jax.impl`); every field is static (one value per sweep: one compiled program).
     The same scenario within the solvers' tolerances whichever values are chosen; the
@@ -197,6 +197,10 @@ class ImplConfig:
                       "fixed body tree ('dense': the same terms within float rounding, tested "
                       "against C MuJoCo, without the tree scatters that XLA's deterministic GPU "
                       "operations sort; docs/benchmarks/cassie_gpu.md)", choices=("mjx", "dense"))
+
+
+#: the implementation fields, set in a sweep's ``[impl]`` table only
+IMPL_FIELDS = tuple(f.name for f in dataclasses.fields(ImplConfig))
 
 
 @dataclass(frozen=True)

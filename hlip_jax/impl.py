@@ -42,9 +42,6 @@ GPU = {"qp_linsys": "inverse", "qp_kernel": "fused", "condense": "deflated", "te
 #: a filled field that needs another field's value (the fused kernel runs the inverse solve)
 REQUIRES = {"qp_kernel": ("qp_linsys", "inverse")}
 
-#: every field a profile may fill
-FIELDS = tuple(GPU)
-
 
 class Resolved(NamedTuple):
     """A profile resolved for a backend: its name (``cpu``, ``gpu`` or ``sweep``), the backend

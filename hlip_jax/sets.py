@@ -569,17 +569,28 @@ def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
     """
     c = as_float64(z.center)
     G = as_float64(z.generators).reshape(-1, c.shape[0])
-    N, n0 = _facet_normals(G, n_prefix)
+    N, n0 = _facet_normals(G, n_prefix, *_significant(G, n_prefix))
     h, h0 = _facet_widths(N, G, n0, n_prefix)
     return Zonotope(c, G, N, h, h0)
 
 
-def _facet_normals(G: np.ndarray, n_prefix: int) -> tuple[np.ndarray, int]:
-    """(N, n0): the facet normals of the zonotope of G, the complete facet set of its first
-    ``n_prefix`` generators first (n0 rows; 0 without a prefix)."""
-    N, n0 = zonotope_normals(G), 0
-    if 0 < n_prefix < G.shape[0]:
-        N0 = zonotope_normals(G[:n_prefix])
+def _significant(G: np.ndarray, n_prefix: int) -> tuple[np.ndarray, np.ndarray]:
+    """(keep, keep0): :func:`significant_generators` of G, and of its first ``n_prefix``
+    generators taken alone (empty without a prefix: 0 < n_prefix < m does not hold)."""
+    keep = significant_generators(G)
+    return keep, (significant_generators(G[:n_prefix]) if 0 < n_prefix < G.shape[0]
+                  else keep[:0])
+
+
+def _facet_normals(G: np.ndarray, n_prefix: int, keep: np.ndarray,
+                   keep0: np.ndarray) -> tuple[np.ndarray, int]:
+    """(N, n0): the facet normals of the zonotope of the generators G[keep], the complete facet
+    set of its first ``n_prefix`` generators (those of them in ``keep0``) first (n0 rows; 0
+    without a prefix, ``keep0`` empty); the masks come from :func:`_significant`."""
+    n = G.shape[1]
+    N, n0 = _normals_of(G[keep], n), 0
+    if len(keep0):
+        N0 = _normals_of(G[:n_prefix][keep0], n)
         N, n0 = _unique_directions(np.concatenate([N0, N])), len(N0)  # keeps N0 first, in order
     return N, n0
 
@@ -817,8 +828,7 @@ def _box_sum(A: np.ndarray, r: np.ndarray, c: np.ndarray, G: np.ndarray, s: int,
     A + BK, so the per-scenario cost is H r instead of |N Gᵀ| (equal up to the order of the sums)."""
     n = len(r)
     n_prefix = n_prefix_terms * n
-    keep = significant_generators(G)
-    keep0 = significant_generators(G[:n_prefix]) if 0 < n_prefix < G.shape[0] else keep[:0]
+    keep, keep0 = _significant(G, n_prefix)
     N, H, H0, T = _box_sum_facets(A.tobytes(), n, s, n_prefix, keep.tobytes(), keep0.tobytes())
     rr = functools.reduce(np.multiply.outer, [r] * n)          # r_a r_b … over label tuples
     return Zonotope(c, G, N, H @ r, None if H0 is None else H0 @ r,
@@ -827,19 +837,16 @@ def _box_sum(A: np.ndarray, r: np.ndarray, c: np.ndarray, G: np.ndarray, s: int,
 
 @functools.lru_cache(maxsize=64)
 def _box_sum_facets(A_bytes: bytes, n: int, s: int, n_prefix: int, keep: bytes, keep0: bytes):
-    """(N, H, H0) of :func:`_box_sum` for A (its bytes, n × n), s terms, a prefix of
-    ``n_prefix`` generators and the masks of the generators that count (bytes of bool)."""
+    """(N, H, H0, T) of :func:`_box_sum` (facet normals, half-widths per unit r, the prefix's,
+    determinant sums) for A (its bytes, n × n), s terms, a prefix of ``n_prefix`` generators
+    and the masks of the generators that count (:func:`_significant`, bytes of bool)."""
     A = np.frombuffer(A_bytes, np.float64).reshape(n, n)
     U, Ai = [], np.eye(n)
     for _ in range(s):
         U.append(Ai.T)                       # rows: (A^i e_j)ᵀ, in truncated_sum's order
         Ai = A @ Ai
     U = np.concatenate(U)
-    keep, keep0 = np.frombuffer(keep, bool), np.frombuffer(keep0, bool)
-    N, n0 = _normals_of(U[keep], n), 0
-    if len(keep0):
-        N0 = _normals_of(U[:n_prefix][keep0], n)
-        N, n0 = _unique_directions(np.concatenate([N0, N])), len(N0)
+    N, n0 = _facet_normals(U, n_prefix, np.frombuffer(keep, bool), np.frombuffer(keep0, bool))
     P = np.abs(N @ U.T)                       # (F, s·n): |N_f · u_ij|
     H = P.reshape(len(N), s, n).sum(axis=1)
     H0 = P[:n0, :n_prefix].reshape(n0, -1, n).sum(axis=1) if n0 else None

@@ -528,7 +528,8 @@ def _resolve_field(field: str, where: str) -> list:
     if parts[0] == "base" and len(parts) > 1:
         raise SweepError(f"{where}.{field!r}: grid fields name a scenario's fields without "
                          f"'base.'; did you mean {'.'.join(parts[1:])!r}?")
-    if parts[0] == "impl" or (parts[0] == "cassie" and len(parts) == 2 and parts[1] in IMPL_FIELDS):
+    if parts[0] == "impl" or (parts[0] == "cassie" and len(parts) == 2
+                              and parts[1] in C.IMPL_FIELDS):
         raise SweepError(f"{where}.{field!r}: an implementation setting cannot be swept (one "
                          f"value per sweep, in its [impl] table)")
     cls, keys, prefix = C.ScenarioConfig, [], ""
@@ -862,10 +863,6 @@ def _expand(doc, text, source, overrides, limit, default_name) -> Sweep:
                  impl_explicit=frozenset(base["impl"]), expand=expand)
 
 
-#: the implementation fields (:class:`hlip_jax.config.ImplConfig`), set in ``[impl]`` only
-IMPL_FIELDS = tuple(f.name for f in dataclasses.fields(C.ImplConfig))
-
-
 def _impl_table(raw) -> tuple[str, dict]:
     """(profile, {field: value}) of the ``[impl]`` table ("auto" and none without one);
     SweepError naming the field."""
@@ -874,8 +871,8 @@ def _impl_table(raw) -> tuple[str, dict]:
     if not isinstance(raw, dict):
         raise SweepError(f"impl: expected a table, got {_tname(raw)} {_fmt(raw)}")
     for k in raw:
-        if k != "profile" and k not in IMPL_FIELDS:
-            raise _unknown_key(k, ("profile",) + IMPL_FIELDS, "impl")
+        if k != "profile" and k not in C.IMPL_FIELDS:
+            raise _unknown_key(k, ("profile",) + C.IMPL_FIELDS, "impl")
     prof = raw.get("profile", "auto")
     if prof not in impl_mod.PROFILES:
         raise SweepError(f"impl.profile: {_fmt(prof)} is not allowed; allowed: "
@@ -892,10 +889,10 @@ def _refuse_impl_elsewhere(table, where: str) -> None:
         return
     if "impl" in table:
         raise SweepError(f"{where}.impl: implementation settings belong in the sweep's [impl] "
-                         f"table (one value per sweep; allowed there: {', '.join(IMPL_FIELDS)})")
+                         f"table (one value per sweep; allowed there: {', '.join(C.IMPL_FIELDS)})")
     cassie = table.get("cassie")
     for k in (cassie if isinstance(cassie, dict) else ()):
-        if k in IMPL_FIELDS:
+        if k in C.IMPL_FIELDS:
             raise SweepError(f"{where}.cassie.{k}: an implementation setting; write it in the "
                              f"sweep's [impl] table ({k} = {_fmt(cassie[k])})")
 
@@ -1229,11 +1226,11 @@ def _with_impl_table(raw: dict) -> dict:
     """A stored scenario table with the implementation fields in its ``impl`` table: results
     written before :class:`hlip_jax.config.ImplConfig` kept them in ``cassie``."""
     cassie = raw.get("cassie")
-    if not isinstance(cassie, dict) or not any(k in IMPL_FIELDS for k in cassie):
+    if not isinstance(cassie, dict) or not any(k in C.IMPL_FIELDS for k in cassie):
         return raw
     impl = dict(raw.get("impl") or {})
-    impl.update({k: v for k, v in cassie.items() if k in IMPL_FIELDS})
-    return {**raw, "cassie": {k: v for k, v in cassie.items() if k not in IMPL_FIELDS},
+    impl.update({k: v for k, v in cassie.items() if k in C.IMPL_FIELDS})
+    return {**raw, "cassie": {k: v for k, v in cassie.items() if k not in C.IMPL_FIELDS},
             "impl": impl}
 
 

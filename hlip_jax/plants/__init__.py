@@ -98,28 +98,32 @@ def load(name: str) -> Plant:
     return importlib.import_module(REGISTRY[name]).PLANT
 
 
+def _changed(table, names=None) -> Optional[tuple]:
+    """(field, value, default) of the first field of the config table ``table`` (of ``names``,
+    default all) whose value is not its class's default; None when all are (no import of the
+    config layer: the defaults come from the table's own class)."""
+    default = type(table)()
+    for name in names if names is not None else (f.name for f in dataclasses.fields(table)):
+        if getattr(table, name) != getattr(default, name):
+            return name, getattr(table, name), getattr(default, name)
+    return None
+
+
 def check(cfg) -> Optional[str]:
     """The plant's own validation of a scenario config: None, or a one-line message naming a
     field the plant cannot take.  Light: no plant module is imported."""
-    d = cfg.disturbance
     if cfg.plant == "hlip":
-        r0 = type(cfg.realism)()           # the defaults (no import of the config layer)
-        for f in dataclasses.fields(r0):
-            if getattr(cfg.realism, f.name) != getattr(r0, f.name):
-                return (f"realism.{f.name}: {getattr(cfg.realism, f.name)!r} models the Cassie robot; "
-                        f"allowed with plant = 'hlip': {getattr(r0, f.name)!r}")
-        i0 = type(cfg.impl)()
-        for f in dataclasses.fields(i0):
-            if getattr(cfg.impl, f.name) != getattr(i0, f.name):
-                return (f"impl.{f.name}: {getattr(cfg.impl, f.name)!r} chooses how the Cassie "
-                        f"robot is computed; allowed with plant = 'hlip': {getattr(i0, f.name)!r}")
+        if (ch := _changed(cfg.realism)) is not None:
+            return (f"realism.{ch[0]}: {ch[1]!r} models the Cassie robot; "
+                    f"allowed with plant = 'hlip': {ch[2]!r}")
+        if (ch := _changed(cfg.impl)) is not None:
+            return (f"impl.{ch[0]}: {ch[1]!r} chooses how the Cassie robot is computed; "
+                    f"allowed with plant = 'hlip': {ch[2]!r}")
     if cfg.plant == "cassie":
-        d0 = type(d)()
-        for f in HLIP_ONLY_DISTURBANCES:
-            if getattr(d, f) != getattr(d0, f):
-                return (f"disturbance.{f}: {_show(getattr(d, f))} acts on the H-LIP plant only; "
-                        f"allowed with plant = 'cassie': {_show(getattr(d0, f))} (Cassie takes "
-                        "disturbance.noise_v, disturbance.step_error and disturbance.pushes)")
+        if (ch := _changed(cfg.disturbance, HLIP_ONLY_DISTURBANCES)) is not None:
+            return (f"disturbance.{ch[0]}: {_show(ch[1])} acts on the H-LIP plant only; "
+                    f"allowed with plant = 'cassie': {_show(ch[2])} (Cassie takes "
+                    "disturbance.noise_v, disturbance.step_error and disturbance.pushes)")
         for f in ("step_height", "rough_height"):
             if cfg.impl.physics == "warp" and getattr(cfg.realism, f) != 0.0:
                 return (f"realism.{f}: {getattr(cfg.realism, f):g} needs the MJX-JAX physics "
