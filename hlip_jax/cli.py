@@ -149,16 +149,39 @@ def _use_cache(args) -> None:
     if args.no_compile_cache:
         trace_cache.disable()
         return
-    if args.compile_cache:
+    if args.compile_cache is not None:
+        if not args.compile_cache.strip():
+            raise UserError("--compile-cache: an empty path; allowed: a writable directory "
+                            "(or --no-compile-cache)")
         try:
             compile_cache.enable(Path(args.compile_cache))
         except compile_cache.CacheDirError as err:
             raise UserError(f"--compile-cache {err}; allowed: a writable directory") from None
         return
+    why = _default_cache_problem()
+    if why is not None:         # never a cache in the working directory or at /.cache
+        trace_cache.disable()
+        print(f"{PROG}: note: compilation cache off: {why}", file=sys.stderr)
+        return
     try:
         compile_cache.enable(compile_cache.default_dir())
     except compile_cache.CacheDirError as err:
         print(f"{PROG}: note: compilation cache off: {err}", file=sys.stderr)
+
+
+def _default_cache_problem() -> str | None:
+    """Why the default cache directory is not to be used, or None: an ``XDG_CACHE_HOME`` that
+    is a relative path (the XDG rule: ignore it) or an empty ``HOME`` would put it in the
+    working directory or at ``/.cache``."""
+    if os.environ.get("HLIP_JAX_CACHE_DIR"):
+        return None
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    if xdg and not os.path.isabs(xdg):
+        return (f"XDG_CACHE_HOME={xdg!r} is a relative path; allowed: an absolute path (or "
+                "--compile-cache DIR)")
+    if not xdg and os.environ.get("HOME", None) == "":
+        return "HOME is empty; set HOME or XDG_CACHE_HOME (or --compile-cache DIR)"
+    return None
 
 
 def _add_run(sub) -> None:
@@ -587,6 +610,25 @@ def _chosen_scenarios(d: Path, regex: str) -> list[int]:
                      "--scenarios")
 
 
+def _stored_rows(d: Path, groups: list[list[int]]):
+    """(the stored chunks' log of the scenarios of ``groups``, each group as rows of that log):
+    a scenario's row is found by its index (an unfinished run stores some chunks only); a note
+    names the scenarios not stored yet, a user error where a group has none."""
+    from hlip_jax import store
+    wanted = [i for g in groups for i in g]
+    log = store.load_log(d, wanted)
+    row = {int(i): r for r, i in enumerate(log["index"])}
+    missing = [i for i in dict.fromkeys(wanted) if i not in row]
+    if missing:
+        print(f"{PROG}: note: {len(missing)} of the {len(set(wanted))} chosen scenarios are not "
+              f"stored yet (an unfinished run; finish it with `{PROG} run SWEEP --out {d} "
+              "--resume`); using the stored ones", file=sys.stderr)
+    rows = [[row[i] for i in g if i in row] for g in groups]
+    if groups[0] and not rows[0]:
+        raise UserError(f"{d}: none of the chosen scenarios is stored yet")
+    return log, rows
+
+
 def _matching(names: list[str], regex: str, option: str) -> list[int]:
     """Indices of ``names`` that ``regex`` matches (Python re.search); UserError naming
     ``option`` when the expression is malformed or, given names, matches none of them."""
@@ -609,8 +651,7 @@ def cmd_s2s(args) -> int:
     d = _results_dir(args.dir)
     if args.skip < 0:
         raise UserError(f"--skip: expected an integer >= 0, got {args.skip}")
-    chosen = _chosen_scenarios(d, args.scenarios)
-    log = store.load_log(d)
+    log, (chosen,) = _stored_rows(d, [_chosen_scenarios(d, args.scenarios)])
     try:
         f = s2s_fit.fit(log, chosen, args.skip)
     except ValueError as err:
@@ -640,8 +681,8 @@ def cmd_identify(args) -> int:
         if not test:
             raise UserError("--test: every matching scenario is also fitted on; allowed: "
                             "scenarios outside --scenarios")
-    log = store.load_log(d)
-    h = store.read_manifest(d)["configs"][chosen[0]]["hlip"]
+    log, (chosen, test) = _stored_rows(d, [chosen, test])
+    h = store.read_manifest(d)["configs"][int(log["index"][chosen[0]])]["hlip"]
     try:
         model = s2s_model.fit(log, chosen, (h["z0"], h["t_ssp"], h["t_dsp"]), args.skip)
     except ValueError as err:
@@ -892,11 +933,11 @@ def _render_output(d: Path, default: Path, given: str | None) -> Path:
 def cmd_render(args) -> int:
     import time
 
-    from hlip_jax import rollout, sweep
+    from hlip_jax import rollout, store
     from hlip_jax.render import clip, files, motion
     _use_cache(args)
     d, man, index = _stored_scenario(args)
-    cfg = sweep.config_from_dict(man["configs"][index])
+    cfg = store.stored_config(man["configs"], index, d)
     out = _render_output(d, files.video(d, index, cfg.name), args.output)
     strip = out.suffix.lower() == ".png"
     req = clip.Request(fps=args.fps, speed=args.speed, camera=args.camera, t0=args.t0,
@@ -1019,6 +1060,12 @@ def cmd_bench(args) -> int:
 
 def main(argv=None) -> int:
     """Entry point of the ``hlip-sweep`` console script; returns the exit code."""
+    try:
+        import jax  # noqa: F401  (reads its JAX_* switches from the environment when imported)
+    except ValueError as err:           # e.g. JAX_ENABLE_X64=maybe
+        print(f"{PROG}: error: {ascii(str(err))[1:-1]}; allowed: 1, true, yes, on, 0, false, "
+              "no or off (or unset)", file=sys.stderr)     # not _fail: it imports JAX again
+        return EXIT_USAGE
     from hlip_jax.report import ReportError
     from hlip_jax.store import StoreError
     from hlip_jax.sweep import SweepError
@@ -1031,6 +1078,7 @@ def main(argv=None) -> int:
                "render": cmd_render}[args.cmd]
     try:
         xla_flags.apply()    # reproducible GPU runs (before JAX's backend starts)
+        _check_environment(args)
         with _sigterm_unwinds():
             return handler(args)
     except (UserError, SweepError, StoreError, ReportError) as err:
@@ -1050,6 +1098,30 @@ def main(argv=None) -> int:
     except Terminated:
         print(f"{PROG}: terminated (SIGTERM){_after_stop(args)}", file=sys.stderr)
         return EXIT_TERMINATED
+
+
+#: values of MUJOCO_GL that MuJoCo reads without raising when it is imported (on Linux)
+MUJOCO_GL_READ = ("egl", "osmesa", "glfw", "glx", "enable", "enabled", "on", "true", "1",
+                  "disable", "disabled", "off", "false", "0")
+
+
+def _check_environment(args) -> None:
+    """A user error, in one line, for environment settings that MuJoCo or JAX would refuse
+    with a traceback: a ``MUJOCO_GL`` MuJoCo does not know, a ``JAX_PLATFORMS`` naming a
+    backend this machine lacks (checked by starting the backend, only where it is set and the
+    command computes; a distributed run starts it after ``jax.distributed.initialize``)."""
+    gl = os.environ.get("MUJOCO_GL", "").strip().lower()
+    if gl and gl not in MUJOCO_GL_READ:
+        raise UserError(f"MUJOCO_GL={gl!r}: allowed: egl, osmesa, glfw, glx (or unset)")
+    platforms = os.environ.get("JAX_PLATFORMS", "").strip()
+    if not platforms or args.cmd in ("list", "show") or getattr(args, "distributed", False):
+        return
+    import jax
+    try:
+        jax.devices()
+    except RuntimeError as err:
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise UserError(f"JAX_PLATFORMS={platforms!r}: {first}") from None
 
 
 def _after_stop(args) -> str:

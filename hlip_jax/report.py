@@ -170,14 +170,14 @@ def _plane_mats(log, s):
     return A, B, K, Acl
 
 
-def invariant_analysis(log, members: list[int], man: dict, warmup: int):
+def invariant_analysis(log, members: list[int], man: dict, warmup: int, out: Path):
     """The consistency view (:func:`hlip_jax.analysis.coverage.consistency`) of the runs
     ``members`` (rows of ``log``, one A, B, K) with the analysis's own masks: (result, the
     runs' :class:`hlip_jax.analysis.runs.RunErrors`)."""
     from hlip_jax.analysis import coverage as cov, runs as runs_mod
     found = []
     for s in members:
-        cfg = sweep.config_from_dict(man["configs"][int(log["index"][s])])
+        cfg = store.stored_config(man["configs"], int(log["index"][s]), out)
         pushes = metrics.push_windows(cfg)
         Acl, _, run = runs_mod.run_errors(log, s, pushes, warmup)
         found.append(run)
@@ -686,7 +686,7 @@ def _path_section(doc: "_Doc", out: Path, man: dict, pname: str, rep: dict,
     doc.h(3, "Error invariant sets and coverage")
     try:
         frame = errors.analysis_frame(log, same[0])
-        an, runs_ = invariant_analysis(log, same, man, store.analysis_settings(out).warmup)
+        an, runs_ = invariant_analysis(log, same, man, store.analysis_settings(out).warmup, out)
         fig_invariant(an, runs_, fig_dir / f"{slug}_invariant.png", pname)
         doc.img(f"figures/{slug}_invariant.png", f"{pname} invariant sets")
         doc.p(f"W and E from {len(same)} run(s) sharing the gain of scenario #{idx}; "
@@ -790,6 +790,8 @@ def _tick_section(doc: "_Doc", out: Path) -> None:
             meta = json.loads(p.read_text(encoding="utf-8"))
         except ValueError as err:            # JSONDecodeError and UnicodeDecodeError
             meta = str(err)
+        except RecursionError:               # arrays nested deeper than the parser goes
+            meta = None
         if not isinstance(meta, dict) or not TICK_KEYS <= meta.keys():
             raise ReportError(f"{p}: not a per-tick record (expected an object with "
                               f"{', '.join(sorted(TICK_KEYS))}); replay the scenario again "

@@ -212,7 +212,7 @@ def _discard_run(out: Path) -> None:
 def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_coverage: bool) -> dict:
     """The manifest of a fresh run (before the environment and status fields)."""
     return {
-        "format": 1,
+        "format": store.MANIFEST_FORMAT,
         "sweep_name": sw.name,
         "sweep_file": sw.source,
         "sweep_text": sw.text,

@@ -195,6 +195,9 @@ def read_manifest(out_dir) -> dict:
         man = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError) as err:     # JSONDecodeError and UnicodeDecodeError
         raise StoreError(f"{p}: unreadable manifest: {err}") from None
+    except RecursionError:
+        raise StoreError(f"{p}: unreadable manifest: arrays or objects nested too deeply "
+                         "(a manifest nests about 4 deep); rerun the sweep with --overwrite") from None
     why = _manifest_problem(man)
     if why is not None:
         raise StoreError(f"{p}: damaged manifest: {why}; rerun the sweep with --overwrite")
@@ -220,9 +223,13 @@ def _config_problem(c: dict) -> str | None:
     return None
 
 
+#: the manifest format this version writes and reads (``format`` of manifest.json)
+MANIFEST_FORMAT = 1
+
+
 def _manifest_problem(man) -> str | None:
-    """What makes a parsed manifest unusable, or None: not an object, or ``configs``,
-    ``batch``, ``n_scenarios`` missing or inconsistent."""
+    """What makes a parsed manifest unusable, or None: not an object, of another format, or
+    ``configs``, ``batch``, ``n_scenarios`` missing or inconsistent."""
     if not isinstance(man, dict):
         return f"expected a JSON object, got {type(man).__name__}"
     configs, batch, n = man.get("configs"), man.get("batch"), man.get("n_scenarios")
@@ -237,6 +244,10 @@ def _manifest_problem(man) -> str | None:
         bad = _config_problem(c)
         if bad:
             return f"configs[{i}]: {bad}"
+    fmt = man.get("format")
+    if isinstance(fmt, bool) or fmt != MANIFEST_FORMAT:
+        return (f"'format' is {fmt!r}; this version reads format {MANIFEST_FORMAT} (results of "
+                "another version of hlip_jax: read them with that version)")
     return None
 
 
@@ -719,9 +730,19 @@ def analysed_runs(out_dir, warmup: int, chosen=None):
         for j, i in enumerate(z["index"]):
             if (chosen is not None and int(i) not in chosen) or not steplog.alive(z["valid"][j]).any():
                 continue
-            cfg = sweep_mod.config_from_dict(configs[int(i)])
+            cfg = stored_config(configs, int(i), out_dir)
             Acl, frame, run = runs.run_errors(z, j, push_windows(cfg), warmup)
             yield int(i), cfg, _group_key(z, j, cfg, frame), Acl, frame, run
+
+
+def stored_config(configs: list, i: int, out_dir):
+    """Scenario ``i`` of a manifest's ``configs`` as a validated config; StoreError naming the
+    manifest of ``out_dir`` where a stored value is not allowed (edited by hand)."""
+    try:
+        return sweep_mod.config_from_dict(configs[i])
+    except sweep_mod.SweepError as err:
+        raise StoreError(f"{Path(out_dir) / MANIFEST}: damaged manifest: configs[{i}]: {err}; "
+                         "rerun the sweep with --overwrite") from None
 
 
 def _groups(runs_list, field: str) -> list[dict]:

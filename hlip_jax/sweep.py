@@ -115,6 +115,9 @@ EAGER_SCENARIOS = 5_000
 #: values one grid axis may hold: each is validated on its own (about 50 µs each), so an axis of
 #: millions would keep `show` busy for minutes
 MAX_AXIS_VALUES = 100_000
+#: entries a list field (``obstacles``, ``disturbance.pushes``) may hold: each one is compiled
+#: into the closed loop (256 obstacles compile in about 40 s on a CPU, 10,000 would take hours)
+MAX_LIST_ITEMS = 256
 #: deepest nesting of tables and arrays a sweep file may have (a real one needs about 6)
 MAX_DEPTH = 32
 #: longest sweep name (it names the results directory) and path name (it names figure files)
@@ -295,6 +298,9 @@ def _build(cls, raw, where: str, exclude=()):
         if name in LIST_ITEMS:
             if not isinstance(v, list):
                 raise SweepError(f"{loc}: expected an array of tables, got {_tname(v)} {_fmt(v)}")
+            if len(v) > MAX_LIST_ITEMS:
+                raise SweepError(f"{loc}: {len(v)} entries; allowed: at most {MAX_LIST_ITEMS} "
+                                 "(each is compiled into the closed loop)")
             kwargs[name] = tuple(_build(LIST_ITEMS[name], item, f"{loc}.{i}")
                                  for i, item in enumerate(v))
         elif (sub := _nested_cls(f)) is not None:
@@ -622,10 +628,11 @@ def _parse_axes(grid, where="grid") -> tuple[Axis, ...]:
         return vals
 
     def check_distinct(rows, loc):
-        if len(set(map(repr, rows))) != len(rows):
-            dup = next(r for r in rows if sum(repr(q) == repr(r) for q in rows) > 1)
-            raise SweepError(f"{loc}: repeated grid point {_fmt(list(dup)) if isinstance(dup, tuple) else _fmt(dup)}; "
-                             f"each grid point must be distinct")
+        first: dict = {}
+        for j, dup in enumerate(rows):
+            if first.setdefault(_point_key(dup), j) != j:
+                raise SweepError(f"{loc}: repeated grid point {_fmt(list(dup)) if isinstance(dup, tuple) else _fmt(dup)}; "
+                                 f"each grid point must be distinct (equal numbers are one point)")
 
     prod = grid.get("product", {})
     if not isinstance(prod, dict):
@@ -911,8 +918,9 @@ def _base_tables(doc: dict, plant, duration, physics=None, impl=None) -> tuple[d
         raise SweepError(f"base.path: expected a table of path parameters, got {_tname(base_path)}")
     if plant is not None:
         base["plant"] = plant
-    if duration is not None:
-        base["duration"] = duration
+    if duration is not None:            # named as the option, not as the file's base.duration
+        kind, meta = _field_meta("duration")
+        base["duration"] = check_scalar(duration, kind, meta, "--duration")
     if physics is not None:
         base["impl"]["physics"] = physics
     _build(C.ScenarioConfig, base, "base", exclude=BASE_EXCLUDE)
@@ -1164,6 +1172,16 @@ def _anchor_files(doc: dict, base: Path) -> None:
         for axes in [grid.get("product")] + list(_as_list(grid.get("zip"))):
             if isinstance(axes, dict) and field in axes:
                 axes[field] = _anchored(axes[field], base)
+
+
+def _point_key(row) -> str:
+    """A grid point as compared by the repeated-point check: numbers by value (``1`` and
+    ``1.0``, ``0.0`` and ``-0.0`` are one point: one setting, and names that read alike)."""
+    def norm(v):
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            return float(v) + 0.0 if abs(v) < 2 ** 53 else v
+        return v
+    return repr(tuple(map(norm, row)) if isinstance(row, tuple) else norm(row))
 
 
 def _as_list(v) -> list:

@@ -501,3 +501,122 @@ def test_a_grid_field_written_with_base_is_pointed_to_its_name():
     from hlip_jax import sweep
     with pytest.raises(sweep.SweepError, match="without 'base.'; did you mean 'duration'"):
         sweep.parse_sweep('[[paths]]\nshape = "line"\n[grid.product]\n"base.duration" = [1.0, 2.0]\n')
+
+
+# ---- sixth round (docs/reliability.md) ----------------------------------------------------
+
+_ONE_PATH = 'name = "r6"\n[base]\nplant = "hlip"\nduration = 2.0\n'
+
+
+@pytest.mark.parametrize("tail", ['[[paths]]\nshape = "line"\n[grid.product]\n'
+                                  '"disturbance.noise_p" = [0.0, -0.0]\n',
+                                  '[[paths]]\nshape = "circle"\n[grid.product]\n'
+                                  '"path.radius" = [1, 1.0]\n'])
+def test_equal_numbers_are_one_grid_point(tmp_path, capsys, tail):
+    p = tmp_path / "r6.toml"
+    p.write_text(_ONE_PATH + tail)
+    line = _one_line_error(*cli(capsys, "show", p)[::2])
+    assert "repeated grid point" in line
+
+
+def test_a_list_field_of_too_many_entries_is_refused(tmp_path, capsys):
+    obs = ", ".join(f"{{x = {10 + i * 0.01:.2f}, y = 5.0, radius = 0.1}}" for i in range(257))
+    p = tmp_path / "r6.toml"
+    p.write_text(_ONE_PATH + f"obstacles = [{obs}]\n[[paths]]\nshape = \"line\"\n")
+    line = _one_line_error(*cli(capsys, "show", p)[::2])
+    assert "base.obstacles: 257 entries; allowed: at most 256" in line
+
+
+def test_a_duration_option_out_of_range_names_the_option(tiny_sweep, tmp_path, capsys):
+    line = _one_line_error(*cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o",
+                                "--duration", "0")[::2])
+    assert "--duration: 0 is out of range" in line and "base.duration" not in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_empty_compile_cache_is_refused(tiny_sweep, tmp_path, capsys):
+    line = _one_line_error(*cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o",
+                                "--compile-cache", "")[::2])
+    assert "--compile-cache: an empty path" in line
+
+
+@pytest.mark.parametrize("env", [{"XDG_CACHE_HOME": "relcache"}, {"HOME": ""}])
+def test_no_default_cache_in_the_working_directory(tiny_sweep, tmp_path, capsys, fake_loop,
+                                                    monkeypatch, env):
+    monkeypatch.delenv("HLIP_JAX_CACHE_DIR", raising=False)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    code, _, err = cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o", "--batch", "2",
+                       "--no-report", "--quiet", "--limit", "2")
+    assert code == 0, err
+    assert "compilation cache off" in err and not list(work.iterdir())
+
+
+def test_bad_mujoco_gl_and_jax_platforms_are_one_line(done, capsys, monkeypatch):
+    import jax
+    monkeypatch.setenv("MUJOCO_GL", "garbage")
+    line = _one_line_error(*cli(capsys, "render", done, "0")[::2])
+    assert "MUJOCO_GL='garbage': allowed: egl, osmesa" in line
+    monkeypatch.delenv("MUJOCO_GL")
+    monkeypatch.setenv("JAX_PLATFORMS", "nosuch")
+
+    def no_backend():
+        raise RuntimeError("Unable to initialize backend 'nosuch'")
+    monkeypatch.setattr(jax, "devices", no_backend)
+    line = _one_line_error(*cli(capsys, "report", done)[::2])
+    assert "JAX_PLATFORMS='nosuch': Unable to initialize backend" in line
+
+
+def test_a_bad_jax_switch_is_one_line():
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-c", "import sys; from hlip_jax.cli import main; "
+                        "sys.exit(main(['list']))"], capture_output=True, text=True,
+                       env={**os.environ, "JAX_ENABLE_X64": "maybe"}, timeout=60)
+    line = _one_line_error(r.returncode, r.stderr)
+    assert "'JAX_ENABLE_X64'" in line and "allowed: 1, true" in line
+
+
+def test_a_deeply_nested_manifest_or_tick_record_names_the_file(done, capsys):
+    deep = "[" * 100_000 + "]" * 100_000
+    (done / "ticks").mkdir()
+    (done / "ticks" / "0.json").write_text(deep)
+    saved = (done / "manifest.json").read_text()
+    (done / "manifest.json").write_text(deep)
+    line = _one_line_error(*cli(capsys, "report", done)[::2])
+    assert "manifest.json: unreadable manifest: arrays or objects nested too deeply" in line
+    (done / "manifest.json").write_text(saved)
+    line = _one_line_error(*cli(capsys, "report", done)[::2])
+    assert "0.json: not a per-tick record" in line
+
+
+@pytest.mark.parametrize("fmt", [0, 99, None, True])
+def test_a_manifest_of_another_format_is_refused(done, capsys, fmt):
+    import json
+    p = done / "manifest.json"
+    man = json.loads(p.read_text())
+    man["format"] = fmt
+    p.write_text(json.dumps(man))
+    line = _one_line_error(*cli(capsys, "report", done)[::2])
+    assert f"'format' is {fmt!r}; this version reads format 1" in line
+
+
+def test_a_stored_value_out_of_range_names_the_manifest(done, capsys):
+    import json
+    p = done / "manifest.json"
+    man = json.loads(p.read_text())
+    man["configs"][0]["duration"] = float("nan")
+    p.write_text(json.dumps(man))
+    line = _one_line_error(*cli(capsys, "render", done, "0")[::2])
+    assert "manifest.json: damaged manifest: configs[0]:" in line and "duration" in line
+
+
+def test_s2s_of_an_unfinished_run_reads_each_scenario_by_its_index(done, capsys):
+    (done / "chunks" / "chunk_00000.npz").unlink()
+    code, out, err = cli(capsys, "s2s", done)
+    assert "Traceback" not in err and "1 of the 4 chosen scenarios are not stored yet" in err
+    assert code == 0 and out.startswith("3 scenarios"), err

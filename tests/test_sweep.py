@@ -169,7 +169,7 @@ def test_overrides_and_limit():
     sw = sweep.parse_sweep(GRID, plant="cassie", duration=3.0, limit=3)
     assert len(sw.scenarios) == 3 and sw.total == 24
     assert all(c.plant == "cassie" and c.duration == 3.0 for c in sw.scenarios)
-    with pytest.raises(sweep.SweepError, match="base.duration"):
+    with pytest.raises(sweep.SweepError, match="--duration: -1 is out of range"):
         sweep.parse_sweep(GRID, duration=-1.0)
     with pytest.raises(sweep.SweepError, match="base.plant"):
         sweep.parse_sweep(GRID, plant="atlas")
