@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import os
 import pathlib
 import sys
 
@@ -196,10 +197,9 @@ def is_reference(fields: list[str], key: tuple) -> bool:
     return all(k in ref and abs(float(v) - float(ref[k])) < 1e-9 for k, v in zip(fields, key))
 
 
-def rank(results: pathlib.Path, top: int) -> None:
-    """Per set (the dotted columns of summary.csv): scenarios walked, then mean RMS distance
-    to the path; the COM height's distance from z0 where tick logs exist; s* and the reach
-    constraint; the reference set marked."""
+def scored_sets(results: pathlib.Path) -> tuple[list, dict, list]:
+    """(the dotted set columns of summary.csv, {set: its rows}, the sets best first as
+    (−walked, mean RMS distance to the path, set, :func:`height_error`))."""
     rows = list(csv.DictReader(open(results / "summary.csv")))
     fields = [k for k in rows[0] if "." in k]
     by_set: dict[tuple, list] = {}
@@ -211,6 +211,51 @@ def rank(results: pathlib.Path, top: int) -> None:
         err = np.nanmean([float(r.get("rms_track_err") or "nan") for r in rs])
         scored.append((-ok, err, key, height_error(results, [r["index"] for r in rs])))
     scored.sort(key=lambda s: (s[0], s[1]))
+    return fields, by_set, scored
+
+
+def validation_sweep(results: pathlib.Path, out: pathlib.Path) -> dict:
+    """Write the validation set (sweeps/cassie_validation.toml) with the best drawn set of a
+    ranked search (:func:`scored_sets`: the first that is not the reference and meets
+    reach <= s*) as its gait, a file that extends the validation sweep; returns that set."""
+    fields, by_set, scored = scored_sets(results)
+    for s in scored:
+        d = dict(zip(fields, s[2]))
+        reach = {k: float(d[k]) for k in ("cassie.clearance", "cassie.strike", "cassie.reach")
+                 if k in d}
+        if not is_reference(fields, s[2]) and (len(reach) < 3 or reach_ok(reach)):
+            break
+    else:
+        raise SystemExit(f"{results}: no drawn set to validate")
+    tables: dict[str, dict] = {}
+    for k, v in d.items():
+        table, key = k.split(".", 1)
+        tables.setdefault(table, {})[key] = v
+    parent = os.path.relpath(ROOT / "sweeps" / "cassie_validation.toml", out.resolve().parent)
+    text = [f"# The validation set with the best drawn set of {results.name} "
+            f"(walked {-s[0]} of its {len(by_set[s[2]])} training runs)",
+            f'extends = "{parent}"', f'name = "{results.name}_validation"', ""]
+    for table, kv in tables.items():
+        text.append(f"[base.{table}]")
+        text += [f"{k} = {_toml_value(v)}" for k, v in kv.items()] + [""]
+    out.write_text("\n".join(text))
+    return d
+
+
+def _toml_value(text: str) -> str:
+    """A summary.csv cell as a TOML value: a number as written, anything else quoted."""
+    try:
+        float(text)
+        return text
+    except ValueError:
+        return json.dumps({"True": True, "False": False}.get(text, text))
+
+
+def rank(results: pathlib.Path, top: int) -> None:
+    """Per set (the dotted columns of summary.csv): scenarios walked, then mean RMS distance
+    to the path; the COM height's distance from z0 where tick logs exist; s* and the reach
+    constraint; the reference set marked."""
+    fields, by_set, scored = scored_sets(results)
     if not any(s[3][2] for s in scored):
         print("COM height: not measurable from these results (summary.csv and the step log "
               "hold no height); replay tick logs with `hlip-sweep run --ticks REGEX` to get it")
@@ -242,9 +287,15 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=pathlib.Path, default=pathlib.Path("cassie_gait_search.toml"))
     ap.add_argument("--rank", type=pathlib.Path, help="results directory of a search to rank")
     ap.add_argument("--top", type=int, default=10)
+    ap.add_argument("--validation", type=pathlib.Path, help="results directory of a search: "
+                    "write --out, the validation sweep with its best drawn set as the gait")
     a = ap.parse_args(argv)
     if a.rank:
         rank(a.rank, a.top)
+        return 0
+    if a.validation:
+        chosen = validation_sweep(a.validation, a.out)
+        print(f"wrote {a.out}: " + ", ".join(f"{k}={v}" for k, v in chosen.items()))
         return 0
     around = json.loads(a.around) if a.around else None
     ranges, constrained = parse_ranges(a.ranges)

@@ -85,3 +85,32 @@ def test_rank_marks_the_reference_and_reads_replayed_heights(tmp_path, capsys):
     gs.rank(tmp_path, 5)
     text = capsys.readouterr().out
     assert "|z - z0| mean 0.020 rms 0.020 m (1 runs)" in text
+
+
+def test_validation_sweep_takes_the_best_drawn_set_that_meets_the_constraint(tmp_path):
+    """--validation: the reference and a set with reach > s* are passed over although they
+    walk more; the file extends the 148-robot validation sweep with the chosen set's values
+    (read back through the sweep loader: every scenario carries them exactly)."""
+    from hlip_jax import sweep
+    ref = {k: gaits.PRESETS["paper"][k] for k in ("cassie.clearance", "cassie.strike", "cassie.reach")}
+    bad = {"cassie.clearance": 0.1, "cassie.strike": 0.02, "cassie.reach": 0.99}
+    good = {"cassie.clearance": 0.1, "cassie.strike": 0.01, "cassie.reach": 0.7}
+    assert not gs.reach_ok(bad) and gs.reach_ok(good)
+    rows = []
+    for i, (vals, ok) in enumerate([(ref, 2), (bad, 2), (good, 1)]):
+        for j in range(2):
+            rows.append({"index": 2 * i + j, "name": f"s{i}-{j}", "status": "ok" if j < ok else "fell",
+                         "rms_track_err": 0.1, "hlip.t_ssp": 0.35, **vals})
+    res = tmp_path / "round"
+    res.mkdir()
+    with open(res / "summary.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    out = tmp_path / "val" / "v.toml"
+    out.parent.mkdir()
+    assert gs.validation_sweep(res, out) == {"hlip.t_ssp": "0.35", **{k: str(v) for k, v in good.items()}}
+    sw = sweep.load_sweep(out)
+    assert len(sw.scenarios) == 148
+    for c in sw.scenarios:
+        assert (c.hlip.t_ssp, c.cassie.clearance, c.cassie.strike, c.cassie.reach) == (0.35, 0.1, 0.01, 0.7)
