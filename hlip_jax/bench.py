@@ -66,22 +66,29 @@ def _peak_bytes(devices):
     return sum(s["peak_bytes_in_use"] for s in stats)
 
 
-def timed_run(batch, static, emit: Callable[[str], None] | None = None, label: str = ""):
-    """Run the compiled closed loop twice on ``batch`` (placed as wanted): the first call
-    compiles, the second is timed.  Returns (compile + first run [s], run [s], output).
+def timed_run(batch, static, emit: Callable[[str], None] | None = None, label: str = "",
+              devices=None):
+    """Run the compiled closed loop twice on ``batch``: the first call compiles, the second is
+    timed.  ``devices``: the host batch run over them as a sweep runs it
+    (:func:`hlip_jax.rollout.run_on`, outputs brought to the host); None: the batch as placed
+    (:func:`hlip_jax.rollout.run`).  Returns (compile + first run [s], run [s], output).
     ``emit`` (optional) hears when each call starts, so a run cut off by a time limit shows
     whether the compile or the timed run was under way."""
     import jax
 
     from hlip_jax import rollout
     say = emit or (lambda _: None)
+    if devices is None:
+        go = lambda: rollout.run(batch, static)                          # noqa: E731
+    else:
+        go = lambda: rollout.run_on(batch, static, devices, rollout.spread_of(devices))  # noqa: E731
     with jax.default_matmul_precision("highest"):
         say(f"{label}: compile + first run started")
         t0 = time.perf_counter()
-        jax.block_until_ready(rollout.run(batch, static))
+        jax.block_until_ready(go())
         t1 = time.perf_counter()
         say(f"{label}: compile + first run took {t1 - t0:.1f} s; timed run started")
-        out = jax.block_until_ready(rollout.run(batch, static))
+        out = jax.block_until_ready(go())
     return t1 - t0, time.perf_counter() - t1, out
 
 
@@ -133,9 +140,9 @@ def _admm_run(batch, static, B: int, steps: int, rows: list, emit) -> list[str]:
     qp_s = static.plant_settings.qp
     full, short = qp_s.max_iter, qp_s.check_interval
     s2 = static._replace(plant_settings=static.plant_settings._replace(qp=qp_s._replace(max_iter=short)))
-    placed = rollout.place(batch, rollout.scenario_sharding(jax.devices()[:1]))
     try:
-        _, t_short, _ = timed_run(placed, s2, emit, f"batch {B}, ADMM budget cut")
+        _, t_short, _ = timed_run(batch, s2, emit, f"batch {B}, ADMM budget cut",
+                                  devices=jax.devices()[:1])
     except Exception as exc:  # noqa: BLE001
         emit(f"batch {B}, ADMM budget {short}: failed: {type(exc).__name__}")
         return []
@@ -162,10 +169,9 @@ def _device_runs(batch, static, B: int, steps: int, devices, emit, loop: str) ->
             emit(f"skipping {n_dev} devices (have {len(jax.devices())}; batch {B})")
             continue
         devs = jax.devices()[:n_dev]
-        placed = rollout.place(batch, rollout.scenario_sharding(devs))
         try:
-            t_first, t_run, out = timed_run(placed, static, emit,
-                                            f"batch {B} on {n_dev} device(s), {loop}")
+            t_first, t_run, out = timed_run(batch, static, emit,
+                                            f"batch {B} on {n_dev} device(s), {loop}", devs)
         except Exception as exc:  # noqa: BLE001 - e.g. out of accelerator memory
             emit(f"batch {B} on {n_dev} device(s), {loop} failed: {type(exc).__name__}: "
                  f"{str(exc).splitlines()[0][:200] if str(exc) else ''}")

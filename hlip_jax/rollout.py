@@ -274,8 +274,9 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
         rows.append(Scenario(mpc=mp, path=path, gain=stepping_gain(c), z0=c.hlip.z0,
                              t_ssp=c.hlip.t_ssp, t_dsp=c.hlip.t_dsp, x0=x0,
                              n_steps=np.int32(n_steps_of(c)), anchor=ANCHOR[m.mode],
-                             plant=plant, key=np.asarray(jax.random.key_data(jax.random.PRNGKey(c.seed)))))
+                             plant=plant, key=None))
     batch = jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *rows)
+    batch = batch._replace(key=_keys([c.seed for c in configs]))
 
     dtype = dtype or default_dtype()
 
@@ -295,6 +296,12 @@ def build(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, dtype=Non
 
 # ----------------------------------------------------------------------------------------------
 # the loop
+
+def _keys(seeds: Sequence[int]) -> np.ndarray:
+    """Every scenario's PRNG key data, ``jax.random.PRNGKey(seed)`` of each seed, in one call
+    (one call per scenario took a quarter of building 2048 Cassie scenarios)."""
+    return np.asarray(jax.random.key_data(jax.vmap(jax.random.PRNGKey)(np.asarray(seeds, np.int64))))
+
 
 def _preview(path, t_start, T, N):
     """Path preview for a plan from time t_start: targets at t_start + jT (j = 1..N),
@@ -500,12 +507,12 @@ def segment_length(n_steps: int) -> int:
 
 
 def _compile_ahead(start, segment, batch: Scenario, static: Static, L: int,
-                   split: Optional[jax.sharding.NamedSharding]) -> None:
+                   split: Optional[jax.sharding.Sharding]) -> None:
     """Trace or load the ``start`` and ``segment`` programs (through :mod:`hlip_jax.trace_cache`
     where it serves them, else by their own jit: MJX's Warp physics) and compile both at once
-    (the segment's carry shapes from the start's program).  ``split``: the batch's sharding
-    where per-device programs run it (the carry is split the same way, the step indices given
-    whole), else None."""
+    (the segment's carry shapes from the start's program).  ``split``: where the batch's
+    arrays are committed (:func:`_committed_to`), the carry is placed the same way and the
+    step indices given whole to its device(s); None for a host batch."""
     shapes = trace_cache.out_shapes(start, static, batch)
     if shapes is None:
         return
@@ -513,10 +520,18 @@ def _compile_ahead(start, segment, batch: Scenario, static: Static, L: int,
     if split is not None:
         carry = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=split),
                              carry)
-        ks = jax.ShapeDtypeStruct(ks.shape, ks.dtype, sharding=jax.sharding.NamedSharding(
-            split.mesh, jax.sharding.PartitionSpec()))
+        whole = (jax.sharding.NamedSharding(split.mesh, jax.sharding.PartitionSpec())
+                 if isinstance(split, jax.sharding.NamedSharding) else split)
+        ks = jax.ShapeDtypeStruct(ks.shape, ks.dtype, sharding=whole)
     trace_cache.compile_together([(start, static, (batch,)),
                                   (segment, static, (batch, carry, ks))])
+
+
+def _committed_to(batch) -> Optional[jax.sharding.Sharding]:
+    """The sharding a batch's arrays are committed to (:func:`place`, or one device by
+    :func:`run_blocks`); None for host (numpy) or uncommitted arrays."""
+    leaf = jax.tree.leaves(batch)[0]
+    return leaf.sharding if getattr(leaf, "committed", False) else None
 
 
 def _mesh_of(batch) -> Optional[jax.sharding.Mesh]:
@@ -580,9 +595,10 @@ def _jitted_call(fn, static, *args):
 
 def _programs(mesh: Optional[jax.sharding.Mesh]):
     """(whole run, start, segment) programs for a batch on ``mesh`` (None: one device).
-    Several CPU devices get per-device loops (:func:`_per_device`); several GPUs keep the
-    loops XLA partitions (the per-device programs crashed XLA's GPU compile on two H200s,
-    jax 0.11.2: docs/benchmarks/sweeps.md, "CPU cores as devices")."""
+    Several CPU devices get per-device loops (:func:`_per_device`); a batch placed over
+    several GPUs gets the loops XLA partitions (the per-device programs crashed XLA's GPU
+    compile on two H200s, jax 0.11.2: docs/benchmarks/sweeps.md, "CPU cores as devices"),
+    which :func:`run_on` avoids by giving each GPU its own block (:func:`spread_of`)."""
     if mesh is None or mesh.devices.flat[0].platform != "cpu":
         return _run_whole, _start_batch, _segment_batch
     if mesh not in _per_mesh:
@@ -590,6 +606,26 @@ def _programs(mesh: Optional[jax.sharding.Mesh]):
         _per_mesh[mesh] = (_per_device(_run_whole, mesh), _per_device(_start_batch, mesh),
                            _per_device(_segment_batch, mesh, replicated=1))
     return _per_mesh[mesh]
+
+
+class _Route(NamedTuple):
+    """How one batch's closed loop is called: its (whole run, start, segment) programs, the
+    call that runs them (through :mod:`hlip_jax.trace_cache` or straight by jit) and, for the
+    per-device programs of several CPU devices, the batch's split (None otherwise)."""
+    whole: object
+    start: object
+    segment: object
+    call: object
+    split: Optional[jax.sharding.NamedSharding]
+
+
+def _route(batch: Scenario) -> _Route:
+    mesh = _mesh_of(batch)
+    whole, start, segment = _programs(mesh)
+    per_device = mesh is not None and mesh in _per_mesh
+    call = trace_cache.call if mesh is None or per_device else _jitted_call
+    split = jax.tree.leaves(batch)[0].sharding if per_device else None
+    return _Route(whole, start, segment, call, split)
 
 
 def run(batch: Scenario, static: Static):
@@ -602,29 +638,116 @@ def run(batch: Scenario, static: Static):
     compiled loop, so it stays cacheable on disk (:mod:`hlip_jax.compile_cache`; the traced
     programs too, :mod:`hlip_jax.trace_cache`).  Both give the same numbers: a segment
     boundary only splits the scan."""
-    mesh = _mesh_of(batch)
-    whole, start, segment = _programs(mesh)
-    per_device = mesh is not None and mesh in _per_mesh
-    call = trace_cache.call if mesh is None or per_device else _jitted_call
+    return run_each([batch], static)[0]
+
+
+def run_each(batches: Sequence[Scenario], static: Static) -> list:
+    """:func:`run` of several batches at once, each on its own device(s), each from its own
+    thread: a GPU program with a while loop holds the thread that launched it until it ends
+    (the loop's test is read back every trip), so calls from one thread run one device after
+    the other (two H200s, 65,536 robots: no faster than one).  Each thread compiles its own
+    executable (concurrently) and runs its batch's loop; the first batch's segments are the
+    ones reported to :mod:`hlip_jax.progress`.  The matmul precision of the calling thread
+    holds in every thread."""
+    if len(batches) == 1:
+        return [_run_one(batches[0], static, True)]
+    from concurrent.futures import ThreadPoolExecutor
+    precision = jax.config.jax_default_matmul_precision
+
+    def one(i):
+        with jax.default_matmul_precision(precision):
+            return _run_one(batches[i], static, i == 0)
+    with ThreadPoolExecutor(len(batches)) as pool:
+        return list(pool.map(one, range(len(batches))))
+
+
+def _run_one(batch: Scenario, static: Static, report: bool):
+    """:func:`run` of one batch; its segments reported to :mod:`hlip_jax.progress` where
+    ``report``."""
+    r = _route(batch)
     if not static.progress:
-        return call(whole, static, batch)
+        return r.call(r.whole, static, batch)
     K, L = static.n_steps, segment_length(static.n_steps)
-    # per-device programs: XLA returns their empty outputs whole on every device, and the
-    # segment's executable, compiled ahead, expects every carry leaf split as the batch is
-    split = jax.tree.leaves(batch)[0].sharding if per_device else None
-    if call is trace_cache.call:
-        _compile_ahead(start, segment, batch, static, L, split)
-    carry, ok0 = call(start, static, batch)
+    if r.call is trace_cache.call:
+        _compile_ahead(r.start, r.segment, batch, static, L, r.split or _committed_to(batch))
+    carry, ok0 = r.call(r.start, static, batch)
     outs = []
     for k0 in range(0, K, L):
-        if split is not None:
-            carry = jax.device_put(carry, split)       # no copy where already split
-        carry, out = call(segment, static, batch, carry, jnp.arange(k0, k0 + L))
+        carry, out = _segment_call(r, static, batch, carry, k0, L)
         outs.append(out)
         jax.block_until_ready(carry)
-        progress.step_done(min(k0 + L, K) - 1, K)
-    out = jax.tree.map(lambda *a: jnp.concatenate(a, axis=1)[:, :K], *outs)
-    return _finish_batch(out, ok0)
+        if report:
+            progress.step_done(min(k0 + L, K) - 1, K)
+    return _finish_batch(jax.tree.map(lambda *a: jnp.concatenate(a, axis=1)[:, :K], *outs), ok0)
+
+
+def _segment_call(route: _Route, static: Static, batch: Scenario, carry, k0: int, L: int):
+    """Steps k0 … k0 + L − 1 of one batch: (carry, their outputs)."""
+    if route.split is not None:
+        # per-device programs: XLA returns their empty outputs whole on every device, and the
+        # segment's executable, compiled ahead, expects every carry leaf split as the batch is
+        carry = jax.device_put(carry, route.split)       # no copy where already split
+    return route.call(route.segment, static, batch, carry, jnp.arange(k0, k0 + L))
+
+
+#: how a batch on several devices runs (:func:`spread_of`)
+SPREADS = ("program", "dispatch")
+
+
+def spread_of(devices: Sequence) -> str:
+    """How a batch runs on several ``devices``: ``"program"`` — one program split over them
+    (:func:`place` and :func:`run`: per-device loops in one ``shard_map`` program, one compile
+    for all), for CPU devices; ``"dispatch"`` — the batch cut into one block per device, each
+    device running the one-device program on its block (:func:`run_blocks`), for GPUs: the
+    split programs crashed XLA's GPU compile (two H200s, jax 0.11.2), the program XLA
+    partitions tests "any robot still stepping" across the devices every tick (no faster on
+    two GPUs than on one: docs/benchmarks/sweeps.md), and the persistent cache serves the
+    first GPU's executable to the others."""
+    return "program" if list(devices)[0].platform == "cpu" else "dispatch"
+
+
+def _local_blocks(n: int, devices: Sequence) -> list[tuple[object, slice]]:
+    """(device, its scenarios) of this process's devices, the ``n`` scenarios cut into
+    ``len(devices)`` equal blocks in the order of ``devices``."""
+    b = n // len(devices)
+    return [(d, slice(i * b, (i + 1) * b)) for i, d in enumerate(devices)
+            if d.process_index == jax.process_index()]
+
+
+def run_blocks(host: Scenario, static: Static, devices: Sequence) -> list:
+    """The closed loop of this process's blocks of the host batch ``host`` (its length a
+    multiple of ``len(devices)``), one block per device of this process, computed together
+    (:func:`run_each`).  Returns the blocks' outputs (device arrays), in the order of
+    ``devices``."""
+    blocks = _local_blocks(len(jax.tree.leaves(host)[0]), devices)
+    batches = [jax.device_put(jax.tree.map(lambda a: np.asarray(a)[s], host), d)
+               for d, s in blocks]
+    return run_each(batches, static)
+
+
+def _gather_blocks(local: list, devices: Sequence):
+    """The outputs of every process's blocks (:func:`run_blocks`; ``local`` this process's, as
+    numpy trees) as one tree of numpy arrays, scenarios in the order of the blocks.  Every
+    process must hold as many of ``devices`` as the others."""
+    mine = jax.tree.map(lambda *a: np.concatenate(a), *local)
+    if jax.process_count() == 1:
+        return mine
+    from jax.experimental import multihost_utils
+    owners = [d.process_index for d in devices]
+    counts = {p: owners.count(p) for p in set(owners)}
+    if len(set(counts.values())) != 1:
+        raise ValueError(f"devices: the processes hold different numbers of the devices "
+                         f"({counts}); a run over several processes needs as many on each")
+    every = multihost_utils.process_allgather(mine, tiled=False)     # (processes, ...)
+    # gathered: process 0's blocks, then process 1's, ...; put them back in block order
+    gathered = [i for p in sorted(counts) for i, o in enumerate(owners) if o == p]
+    order = np.argsort(gathered)
+    n_blocks = len(devices)
+
+    def blocks_in_order(a):
+        a = np.asarray(a).reshape((n_blocks, -1) + a.shape[2:])
+        return a[order].reshape((-1,) + a.shape[2:])
+    return jax.tree.map(blocks_in_order, every)
 
 
 def scenario_sharding(devices=None):
@@ -680,7 +803,8 @@ def simulate_ticks(configs: Sequence[ScenarioConfig], index: int, *, n_samples: 
                                 shapes=shapes_of(configs), devices=jax.devices()[:1])[0]
 
 
-def _simulate_batch(configs, *, n_samples, pad_to, dtype, shapes, devices, keep_ticks):
+def _simulate_batch(configs, *, n_samples, pad_to, dtype, shapes, devices, keep_ticks,
+                    spread=None):
     """:func:`simulate`'s run: (the host batch, the outputs of the first ``len(configs)``
     scenarios as numpy arrays), the tick log under "ticks" where ``keep_ticks``."""
     configs = list(configs)
@@ -689,15 +813,33 @@ def _simulate_batch(configs, *, n_samples, pad_to, dtype, shapes, devices, keep_
     n = max(pad_to or S, S)
     n = -(-n // len(devices)) * len(devices)
     padded = configs + [configs[-1]] * (n - S)
-    batch, static = build(padded, n_samples=n_samples, dtype=dtype, shapes=shapes)
-    host = batch
-    if len(devices) > 1:
-        batch = place(batch, scenario_sharding(devices))
+    host, static = build(padded, n_samples=n_samples, dtype=dtype, shapes=shapes)
+    out = run_on(host, static._replace(progress=progress.active(), keep_ticks=keep_ticks),
+                 devices, spread or spread_of(devices))
+    return host, jax.tree.map(lambda a: a[:S], out)
+
+
+def run_on(host: Scenario, static: Static, devices: Sequence, spread: str) -> dict:
+    """Every scenario's closed loop of the host batch ``host`` (its length a multiple of
+    ``len(devices)``) on ``devices``, shared as ``spread`` (:data:`SPREADS`,
+    :func:`spread_of`) says, in every process of a ``jax.distributed`` run; the outputs as
+    numpy arrays, scenarios in order."""
+    devices = list(devices)
+    if spread not in SPREADS:
+        raise ValueError(f"spread: {spread!r} is not allowed; allowed: {', '.join(SPREADS)}")
     with jax.default_matmul_precision("highest"):
-        out = run(batch, static._replace(progress=progress.active(), keep_ticks=keep_ticks))
-    jax.block_until_ready(out)
-    _all_processes_arrive()
-    return host, jax.tree.map(lambda a: _to_host(a)[:S], out)
+        if len(devices) > 1 and spread == "dispatch":
+            local = run_blocks(host, static, devices)
+            jax.block_until_ready(local)
+            _all_processes_arrive()
+            return _gather_blocks([jax.tree.map(np.asarray, o) for o in local], devices)
+        # placed once: a host batch would be copied to the device again by every segment's call
+        batch = (place(host, scenario_sharding(devices)) if len(devices) > 1
+                 else jax.device_put(host, devices[0]))
+        out = run(batch, static)
+        jax.block_until_ready(out)
+        _all_processes_arrive()
+        return jax.tree.map(_to_host, out)
 
 
 def simulate_chunk_ticks(configs: Sequence[ScenarioConfig], indices: Sequence[int], *,
@@ -736,7 +878,8 @@ def check_keeps_ticks(cfg: ScenarioConfig, index: int) -> None:
 
 
 def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to: int | None = None,
-             dtype=None, shapes: Shapes | None = None, devices=None) -> Log:
+             dtype=None, shapes: Shapes | None = None, devices=None,
+             spread: str | None = None) -> Log:
     """Run every scenario of ``configs`` in one compiled, vmapped call and return the Log
     (numpy arrays, scenarios in the order given).
 
@@ -745,12 +888,14 @@ def simulate(configs: Sequence[ScenarioConfig], *, n_samples: int = 2048, pad_to
     is dropped from the Log.  With several devices (``devices``, default all of
     ``jax.devices()``: GPUs, or the CPU's cores as :mod:`hlip_jax.xla_flags` sets them up)
     the batch is padded to a multiple of their number and split over them along the scenario
-    axis (:func:`scenario_sharding`), each running its own scenarios' loop.  While someone listens
-    (:func:`hlip_jax.progress.listening`) every finished walking step is reported."""
+    axis, each running its own scenarios' loop, as ``spread`` says (:data:`SPREADS`; by default
+    :func:`spread_of` the devices: one split program on CPU devices, one block per GPU).
+    While someone listens (:func:`hlip_jax.progress.listening`) every finished walking step
+    is reported."""
     configs = list(configs)
     S = len(configs)
     host, out = _simulate_batch(configs, n_samples=n_samples, pad_to=pad_to, dtype=dtype,
-                                shapes=shapes, devices=devices, keep_ticks=False)
+                                shapes=shapes, devices=devices, keep_ticks=False, spread=spread)
     valid = out["valid"]
     valid_w = valid & np.concatenate([valid[:, 1:], np.zeros((S, 1), bool)], axis=1)  # k, k+1
     out["w"] = np.where(valid_w[..., None, None], out["w"], np.nan)

@@ -45,6 +45,7 @@ import importlib.util
 import os
 import pickle
 import tempfile
+import threading
 from pathlib import Path
 from typing import Any, Callable, NamedTuple, Optional
 
@@ -69,27 +70,47 @@ _dir: Optional[Path] = None
 
 class Program(NamedTuple):
     """A loaded program: the exported function, its output's tree structure, its jitted call
-    on flat leaves, and the executable compiled ahead by :func:`compile_together` (None
-    until then)."""
+    on flat leaves, and the executables compiled ahead by :func:`compile_together`, one per
+    placement of the arguments (:func:`placement`; empty until then)."""
     exported: Any
     out_tree: Any
     jitted: Callable
-    compiled: Optional[Callable]
+    compiled: dict
 
     def run(self, leaves):
-        """The outputs' flat leaves.  The compiled executable where it accepts the
-        arguments (it raises TypeError where their types differ from the exported ones)."""
-        if self.compiled is not None:
+        """The outputs' flat leaves.  The executable compiled for the arguments' placement
+        where it accepts them (:data:`PLACEMENT_ERRORS` where their types differ from the
+        ones it was compiled for), else the jitted call, which compiles for them."""
+        exe = self.compiled.get(placement(leaves))
+        if exe is not None:
             try:
-                return self.compiled(*leaves)
-            except TypeError:
+                return exe(*leaves)
+            except PLACEMENT_ERRORS:
                 pass
         return self.jitted(*leaves)
 
 
+def placement(args) -> Optional[tuple]:
+    """The ids of the devices the arguments' first leaf is committed to (None for host or
+    uncommitted arrays): executables compiled ahead are kept per placement, since the
+    closed loop may run the same program on several devices at once
+    (:func:`hlip_jax.rollout.run_each`)."""
+    leaves = jax.tree.leaves(args)
+    leaf = leaves[0] if leaves else None
+    if leaf is None or not getattr(leaf, "committed", False):
+        return None
+    return tuple(sorted(d.id for d in leaf.sharding.device_set))
+
+
+#: what an executable compiled ahead raises for arguments it was not compiled for: other
+#: types or a committed array where the lowering had none (TypeError), arrays on another device
+#: (ValueError; :func:`hlip_jax.rollout.run_each` gives one program's calls to several devices)
+PLACEMENT_ERRORS = (TypeError, ValueError)
+
 _loaded: dict[str, Program] = {}      # key -> program, for the rest of the process
 _ahead: dict[tuple, Callable] = {}    # call signature -> executable compiled ahead by jit
                                       # (calls the cache does not serve: compile_together)
+_lock = threading.Lock()              # one thread at a time traces, loads or stores a program
 
 
 def enable(path: Path) -> None:
@@ -225,7 +246,7 @@ def _usable() -> bool:
 
 
 def _program_of(exported, out_tree) -> Program:
-    return Program(exported, out_tree, jax.jit(exported.call), None)
+    return Program(exported, out_tree, jax.jit(exported.call), {})
 
 
 def _load(file: Path) -> Optional[Program]:
@@ -313,7 +334,10 @@ def _lookup(fn: Callable, static, args) -> Optional[tuple[str, Program]]:
         return None
     leaves, treedef = jax.tree.flatten(args)
     k = key(fn.__name__, static, leaves, treedef)
-    prog = None if k is None else _program(fn, static, args, k)
+    if k is None:
+        return None
+    with _lock:          # a second thread asking for the same program waits for the first's
+        prog = _program(fn, static, args, k)
     return None if prog is None else (k, prog)
 
 
@@ -328,20 +352,23 @@ def call(fn: Callable, static, *args):
 
 
 def _signature(fn: Callable, static, args) -> tuple:
-    """The function, its static settings and the arguments' structure, shapes and dtypes."""
+    """The function, its static settings, the arguments' structure, shapes and dtypes, and
+    their :func:`placement`."""
     leaves, treedef = jax.tree.flatten(args)
-    return (fn, static, treedef, tuple((tuple(a.shape), str(a.dtype)) for a in leaves))
+    return (fn, static, treedef, tuple((tuple(a.shape), str(a.dtype)) for a in leaves),
+            placement(leaves))
 
 
 def _call_ahead(fn: Callable, static, args):
     """``fn(*args, static=static)`` by the executable :func:`compile_together` made for these
-    argument types, where it accepts the arguments as placed (it raises TypeError where their
-    types or placement differ: a committed array where the lowering had none), else by jit."""
+    argument types, where it accepts the arguments as placed (:data:`PLACEMENT_ERRORS` where
+    their types or placement differ: a committed array where the lowering had none, or
+    another device), else by jit."""
     compiled = _ahead.get(_signature(fn, static, args))
     if compiled is not None:
         try:
             return compiled(*args)
-        except TypeError:
+        except PLACEMENT_ERRORS:
             pass
     return fn(*args, static=static)
 
@@ -391,7 +418,7 @@ def compile_together(calls) -> None:
             sig = _signature(fn, static, args)
             low = None if sig in _ahead else _jit_lowered(fn, static, args)
             lowered.update({} if low is None else {sig: low})
-        elif found[1].compiled is None:
+        elif placement(args) not in found[1].compiled:
             todo[found[0]] = (found[1], args)
     if not todo and not lowered:
         return
@@ -401,4 +428,5 @@ def compile_together(calls) -> None:
         done = dict(zip(todo, pool.map(lambda pa: _compile(*pa), todo.values())))
         _ahead.update({sig: f.result() for sig, f in jitted.items()})
     for k, compiled in done.items():
-        _loaded[k] = todo[k][0]._replace(compiled=compiled)
+        prog, args = todo[k]
+        prog.compiled[placement(args)] = compiled

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from hlip_jax import rollout, runner, store, sweep
+from hlip_jax.config import PathConfig, ScenarioConfig
 
 SMALL_SWEEP = textwrap.dedent("""
     name = "scale-test"
@@ -143,3 +144,76 @@ def test_a_cpu_pool_no_larger_than_the_devices_is_refused(monkeypatch):
     monkeypatch.setenv("PJRT_NPROC", "2")
     monkeypatch.setattr(rollout, "_jaxlib_version", lambda: (0, 11))
     rollout._check_cpu_pool(Mesh())
+
+
+DISPATCHED = textwrap.dedent("""
+    import json, os, sys
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    if len(sys.argv) > 2:                  # process id and coordinator port of a two-process run
+        jax.distributed.initialize(f"localhost:{sys.argv[2]}", 2, int(sys.argv[1]))
+    import numpy as np
+    from hlip_jax import progress, rollout
+    from hlip_jax.config import PathConfig, ScenarioConfig
+    cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
+            for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("square", 0.4)])]
+    whole = rollout.simulate(cfgs, spread="dispatch")
+    with progress.listening(lambda k, n: None):          # the segmented loop
+        segmented = rollout.simulate(cfgs, spread="dispatch")
+    print(json.dumps({"devices": len(jax.devices()), "x": np.nan_to_num(whole.x_robot).tolist(),
+                      "x_seg": np.nan_to_num(segmented.x_robot).tolist(),
+                      "status": whole.status.tolist()}))
+""")
+
+
+def _dispatched(args: list, xla_flags: str, port=None) -> subprocess.Popen:
+    env = dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS=xla_flags, PJRT_NPROC="4")
+    return subprocess.Popen([sys.executable, "-c", DISPATCHED, *args], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def _result(p: subprocess.Popen) -> dict:
+    out, err = p.communicate(timeout=280)
+    assert p.returncode == 0, err[-3000:]
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def _single_device():
+    cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
+            for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("square", 0.4)])]
+    return rollout.simulate(cfgs, devices=jax.devices()[:1])
+
+
+@pytest.mark.timeout(300)
+def test_blocks_dispatched_over_two_devices_equal_one_device(float64):
+    """The GPUs' way of sharing a batch (rollout.spread_of: one block per device, each device
+    running the one-device program, dispatched together), on two CPU devices of one process:
+    3 H-LIP scenarios padded to 4, two per device; whole-run and segmented loops equal the
+    one-device run to 1e-9 (the same float64 loop on a batch of 2 instead of 3)."""
+    got = _result(_dispatched([], "--xla_force_host_platform_device_count=2"))
+    single = _single_device()
+    assert got["devices"] == 2
+    for k in ("x", "x_seg"):
+        assert np.max(np.abs(np.asarray(got[k]) - np.nan_to_num(single.x_robot))) <= 1e-9, k
+    assert got["status"] == single.status.tolist()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_blocks_dispatched_over_two_processes_equal_one_device(float64):
+    """The same over two processes of one CPU device each (jax.distributed on this host):
+    each process runs its own block and the blocks are gathered in order; both processes
+    return the whole batch, equal to the one-device run to 1e-9."""
+    import socket
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        port = str(s.getsockname()[1])
+    procs = [_dispatched([str(i), port], "--xla_force_host_platform_device_count=1")
+             for i in (0, 1)]
+    got = [_result(p) for p in procs]
+    single = _single_device()
+    for g in got:
+        assert g["devices"] == 2
+        for k in ("x", "x_seg"):
+            assert np.max(np.abs(np.asarray(g[k]) - np.nan_to_num(single.x_robot))) <= 1e-9, k
+        assert g["status"] == single.status.tolist()

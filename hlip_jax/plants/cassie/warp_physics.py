@@ -29,6 +29,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from hlip_jax.plants.cassie import model
 from hlip_jax.plants.cassie.mjx_import import mjx
 
 #: MJX Data fields that carry the simulation's state from one step to the next (the rest
@@ -61,9 +62,10 @@ def base_model(mj_model):
     closed chains need 4, docs), MJX-JAX runs the same cap silently, and Warp would print
     "solver iterations limit reached" into a sweep's progress output.  Built with concrete
     arrays even when first asked for inside a trace, so the cached model holds no tracer of a
-    finished compile."""
+    finished compile.  On this process's first device (:func:`model.put`): on process 0's
+    device, every other process of a ``--distributed`` run failed to compile the closed loop."""
     with jax.ensure_compile_time_eval():     # concrete arrays, even when first asked inside a trace
-        mx = mjx.put_model(mj_model, impl="warp")
+        mx = model.put(mj_model, "warp")
     return mx.replace(opt=mx.opt.replace(_impl=mx.opt._impl.replace(warn_overflow=0)))
 
 
