@@ -21,7 +21,7 @@ ROOT = sys.argv[1] if len(sys.argv) > 1 else "."
 OUT = sys.argv[2] if len(sys.argv) > 2 else "cassie_idle_ticks.npz"
 sys.path.insert(0, ROOT)
 
-from hlip_jax import rollout, sweep  # noqa: E402
+from hlip_jax import arrays, execution, sweep  # noqa: E402
 from hlip_jax.config import PathConfig, PushConfig  # noqa: E402
 
 
@@ -39,14 +39,14 @@ def configs():
 
 def main():
     cfgs = configs()
-    shapes = rollout.shapes_of(cfgs)
+    shapes = arrays.shapes_of(cfgs)
     t0 = time.time()
-    rollout.simulate(cfgs, shapes=shapes)
+    execution.simulate(cfgs, shapes=shapes)
     t1 = time.time()
-    log = rollout.simulate(cfgs, shapes=shapes)
+    log = execution.simulate(cfgs, shapes=shapes)
     t2 = time.time()
-    arrays = {k: np.asarray(getattr(log, k)) for k in log._fields if getattr(log, k) is not None}
-    np.savez(OUT, **arrays)
+    fields = {k: np.asarray(getattr(log, k)) for k in log._fields if getattr(log, k) is not None}
+    np.savez(OUT, **fields)
     print(json.dumps(dict(first=round(t1 - t0, 2), second=round(t2 - t1, 2),
                           status=arrays["status"].tolist(),
                           fail_step=arrays["fail_step"].tolist())))

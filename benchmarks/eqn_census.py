@@ -1,7 +1,7 @@
 """How large the closed loop's compiled programs are, and which source files make them so.
 
 XLA's compile time grows with the program it is given.  This counts the equations of the
-start or segment program (:func:`hlip_jax.rollout._start_batch`, ``_segment_batch``; the
+start or segment program (:func:`hlip_jax.rollout.start_batch`, ``segment_batch``; the
 bodies of loops and conditionals counted once each) of a sweep file's first ``--batch``
 scenarios, grouped by the source file of their innermost frame outside JAX ("(jax)": issued
 by JAX's own jitted helpers, such as ``jnp`` indexing)::
@@ -52,20 +52,20 @@ def main(argv=None) -> None:
     import jax
     import scatter_census
 
-    from hlip_jax import rollout
+    from hlip_jax import arrays, rollout
     from hlip_jax.sweep import load_sweep
     cfgs = list(load_sweep(args.sweep).scenarios)[:args.batch]
-    batch, static = rollout.build(cfgs)
+    batch, static = arrays.build(cfgs)
     static = static._replace(progress=True)
     with jax.default_matmul_precision("highest"):
         if args.program == "start":
-            counts = scatter_census.census(lambda b: rollout._start_batch(b, static), batch,
+            counts = scatter_census.census(lambda b: rollout.start_batch(b, static), batch,
                                            depth=1, prefix="")
         else:
-            carry = jax.eval_shape(lambda b: rollout._start_batch(b, static), batch)[0]
+            carry = jax.eval_shape(lambda b: rollout.start_batch(b, static), batch)[0]
             ks = jax.numpy.arange(rollout.segment_length(static.n_steps))
             counts = scatter_census.census(
-                lambda b, c, k: rollout._segment_batch(b, c, k, static), batch, carry, ks,
+                lambda b, c, k: rollout.segment_batch(b, c, k, static), batch, carry, ks,
                 depth=1, prefix="")
     print(f"{args.sweep}: {len(cfgs)} scenarios, {args.program} program"
           f"{', physics left out' if args.no_physics else ''}: "

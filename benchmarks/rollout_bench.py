@@ -42,7 +42,7 @@ def main(argv=None):
     if args.x64:
         jax.config.update("jax_enable_x64", True)
     import numpy as np
-    from hlip_jax import rollout, steplog
+    from hlip_jax import arrays, steplog
     from hlip_jax.bench import timed_run
 
     dev = jax.devices()[0]
@@ -53,7 +53,7 @@ def main(argv=None):
     for b in args.batch:
         cfgs = mixed_configs(b, args.duration)
         t0 = time.perf_counter()
-        batch, static = rollout.build(cfgs)
+        batch, static = arrays.build(cfgs)
         t_build = time.perf_counter() - t0
         t_first, t_run, out = timed_run(batch, static)
         steps = static.n_steps

@@ -1,5 +1,5 @@
 """Why a Cassie sweep runs slower than ``hlip-sweep bench``: the same compiled closed loop
-(:func:`hlip_jax.rollout.run`) timed on the benchmark's scenarios and on a shipped sweep's, at
+(:func:`hlip_jax.execution.run`) timed on the benchmark's scenarios and on a shipped sweep's, at
 one batch size and one simulated duration, in one process.
 
     python benchmarks/sweep_gap.py --batch 256 --duration 2.0 [--sweep sweeps/coverage_study.toml]
@@ -47,15 +47,15 @@ def run_case(name, sweep_file, batch, duration):
     import jax
     import numpy as np
 
-    from hlip_jax import bench, rollout, steplog
+    from hlip_jax import arrays, bench, steplog
 
     cfgs = _cases(name, sweep_file, batch, duration)
-    shapes = rollout.shapes_of(cfgs)
+    shapes = arrays.shapes_of(cfgs)
     if name == "sweep-realism":
         if shapes.non_ideal:
             raise SystemExit("sweep-realism: the sweep must be ideal (no [realism] departures)")
         shapes = shapes._replace(non_ideal=True)
-    b, static = rollout.build(cfgs, shapes=shapes)
+    b, static = arrays.build(cfgs, shapes=shapes)
     t_first, t_run, out = bench.timed_run(b, static)
     sim = float(np.sum(np.asarray(b.t_ssp + b.t_dsp)) * static.n_steps)
     walked = float(np.mean(np.asarray(out["status"]) == steplog.STATUS_OK))
@@ -70,9 +70,9 @@ def per_step(name, sweep_file, batch, duration):
     import jax
     import numpy as np
 
-    from hlip_jax import progress, rollout, steplog
+    from hlip_jax import arrays, execution, progress, steplog
 
-    b, static = rollout.build(_cases(name, sweep_file, batch, duration))
+    b, static = arrays.build(_cases(name, sweep_file, batch, duration))
     t0 = time.perf_counter()
     last = [t0]
 
@@ -82,7 +82,7 @@ def per_step(name, sweep_file, batch, duration):
         last[0] = now
 
     with progress.listening(heard), jax.default_matmul_precision("highest"):
-        out = jax.block_until_ready(rollout.run(b, static._replace(progress=True)))
+        out = jax.block_until_ready(execution.run(b, static._replace(progress=True)))
     status = np.asarray(out["status"])
     print(f"{name}: done at {time.perf_counter() - t0:.1f} s; walked "
           f"{np.mean(status == steplog.STATUS_OK):.3f}; fail steps "

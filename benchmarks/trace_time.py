@@ -1,5 +1,5 @@
 """Where the time before a sweep's first simulated step goes: tracing, lowering and compiling
-the closed loop's segment program (:func:`hlip_jax.rollout._segment_batch`), each timed on
+the closed loop's segment program (:func:`hlip_jax.rollout.segment_batch`), each timed on
 its own, for a sweep file's first ``--batch`` scenarios.
 
     python benchmarks/trace_time.py [--sweep sweeps/paper.toml] [--batch 6] [--duration 3]
@@ -63,23 +63,23 @@ def main(argv=None):
     import jax
     import jax.numpy as jnp
 
-    from hlip_jax import rollout
+    from hlip_jax import arrays, rollout
     from hlip_jax.sweep import load_sweep
 
     cfgs = list(load_sweep(args.sweep, duration=args.duration).scenarios)[:args.batch]
-    batch, static = rollout.build(cfgs)
+    batch, static = arrays.build(cfgs)
     static = static._replace(progress=True)
     print(f"{args.sweep}: {len(cfgs)} scenarios, {static.n_steps} steps, "
           f"plant {static.plant}, {jax.default_backend()}, "
           f"substeps {'unrolled' if args.unrolled_substeps else 'loop'}", flush=True)
     with jax.default_matmul_precision("highest"):
         carry, _ = _timed("start", lambda: jax.block_until_ready(
-            rollout._start_batch(batch, static)))
+            rollout.start_batch(batch, static)))
         ks = jnp.arange(rollout.segment_length(static.n_steps))
         for r in range(args.repeats):
             print(f"repeat {r + 1}", flush=True)
-            rollout._segment_batch.clear_cache()
-            traced = _timed("trace", lambda: rollout._segment_batch.trace(batch, carry, ks, static))
+            rollout.segment_batch.clear_cache()
+            traced = _timed("trace", lambda: rollout.segment_batch.trace(batch, carry, ks, static))
             lowered = _timed("lower", traced.lower)
             if not args.no_compile:
                 _timed("compile", lowered.compile)

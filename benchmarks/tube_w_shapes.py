@@ -25,7 +25,7 @@ import argparse
 
 import numpy as np
 
-from hlip_jax import robust, rollout, store, sweep
+from hlip_jax import arrays, robust, store, sweep
 
 
 def pooled(out_dir: str, only: str | None):
@@ -37,8 +37,8 @@ def pooled(out_dir: str, only: str | None):
         raise SystemExit("no runs selected")
     models = set()
     for i in chosen:
-        A, B = (np.asarray(a, np.float64) for a in rollout._cached_s2s(configs[i].hlip))
-        K = rollout.stepping_gain(configs[i])
+        A, B = (np.asarray(a, np.float64) for a in arrays._cached_s2s(configs[i].hlip))
+        K = arrays.stepping_gain(configs[i])
         models.add(np.round(np.concatenate([A.ravel(), B, K.ravel()]), 12).tobytes())
     if len(models) > 1:
         raise SystemExit("the runs have different S2S models or gains; choose one (--only)")

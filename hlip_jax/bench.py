@@ -70,18 +70,18 @@ def timed_run(batch, static, emit: Callable[[str], None] | None = None, label: s
               devices=None):
     """Run the compiled closed loop twice on ``batch``: the first call compiles, the second is
     timed.  ``devices``: the host batch run over them as a sweep runs it
-    (:func:`hlip_jax.rollout.run_on`, outputs brought to the host); None: the batch as placed
-    (:func:`hlip_jax.rollout.run`).  Returns (compile + first run [s], run [s], output).
+    (:func:`hlip_jax.execution.run_on`, outputs brought to the host); None: the batch as placed
+    (:func:`hlip_jax.execution.run`).  Returns (compile + first run [s], run [s], output).
     ``emit`` (optional) hears when each call starts, so a run cut off by a time limit shows
     whether the compile or the timed run was under way."""
     import jax
 
-    from hlip_jax import rollout
+    from hlip_jax import execution
     say = emit or (lambda _: None)
     if devices is None:
-        go = lambda: rollout.run(batch, static)                          # noqa: E731
+        go = lambda: execution.run(batch, static)                          # noqa: E731
     else:
-        go = lambda: rollout.run_on(batch, static, devices, rollout.spread_of(devices))  # noqa: E731
+        go = lambda: execution.run_on(batch, static, devices, execution.spread_of(devices))  # noqa: E731
     with jax.default_matmul_precision("highest"):
         say(f"{label}: compile + first run started")
         t0 = time.perf_counter()
@@ -136,7 +136,6 @@ def _admm_run(batch, static, B: int, steps: int, rows: list, emit) -> list[str]:
     one-device row of ``rows`` and returns the ADMM table's rows."""
     import jax
 
-    from hlip_jax import rollout
     qp_s = static.plant_settings.qp
     full, short = qp_s.max_iter, qp_s.check_interval
     s2 = static._replace(plant_settings=static.plant_settings._replace(qp=qp_s._replace(max_iter=short)))
@@ -162,7 +161,6 @@ def _device_runs(batch, static, B: int, steps: int, devices, emit, loop: str) ->
     import jax
     import numpy as np
 
-    from hlip_jax import rollout
     runs = []
     for n_dev in devices:
         if n_dev > len(jax.devices()) or B % n_dev:
@@ -278,7 +276,7 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
     import jax
     import numpy as np
 
-    from hlip_jax import rollout
+    from hlip_jax import arrays
     from hlip_jax.plants.cassie import control
 
     emit(f"backend {jax.default_backend()} device {jax.devices()[0].device_kind}; "
@@ -286,7 +284,7 @@ def closed_loop(batches: Sequence[int], duration: float, devices: Sequence[int] 
     emit(HEADER)
     rows, admm_rows = [], []
     for B in batches:
-        builds = [(v["qp_rho_start"], rollout.build(configs(B, duration, **v)))
+        builds = [(v["qp_rho_start"], arrays.build(configs(B, duration, **v)))
                   for v in _variants(physics, qp_loops, qp_linsys, qp_kernels, qp_rho_start,
                                      condense, terms)]
         batch, static = builds[0][1]

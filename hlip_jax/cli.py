@@ -29,7 +29,7 @@ On a GPU every command runs XLA's deterministic operations, so a rerun repeats b
 (:mod:`hlip_jax.xla_flags`; ``XLA_FLAGS=--xla_gpu_deterministic_ops=false`` turns them off).
 
 ``HLIP_SWEEP_SIMULATE=module:function`` replaces the closed loop
-(:func:`hlip_jax.rollout.simulate`) by another function of the same contract — used by tests
+(:func:`hlip_jax.execution.simulate`) by another function of the same contract — used by tests
 and for trying alternative plants without editing the package.
 """
 
@@ -493,12 +493,12 @@ def cmd_run(args) -> int:
 def _tick_choice(sw, pattern: str) -> list[int]:
     """Indices of the scenarios of ``sw`` whose names match ``pattern`` (``--ticks``); a user
     error, before anything runs, for a bad pattern, no match or a plant without a tick log."""
-    from hlip_jax import rollout
+    from hlip_jax import execution
     cfgs = list(sw.scenarios)
     chosen = _matching([c.name for c in cfgs], pattern, "--ticks")
     for i in chosen:
         try:
-            rollout.check_keeps_ticks(cfgs[i], i)
+            execution.check_keeps_ticks(cfgs[i], i)
         except ValueError as err:
             raise UserError(f"--ticks: {err}") from None
     return chosen
@@ -933,7 +933,7 @@ def _render_output(d: Path, default: Path, given: str | None) -> Path:
 def cmd_render(args) -> int:
     import time
 
-    from hlip_jax import rollout, store
+    from hlip_jax import execution, store
     from hlip_jax.render import clip, files, motion
     _use_cache(args)
     d, man, index = _stored_scenario(args)
@@ -944,7 +944,7 @@ def cmd_render(args) -> int:
                        t1=args.t1, width=args.width or (320 if strip else 640),
                        height=args.height or (240 if strip else 480))
     try:
-        rollout.check_keeps_ticks(cfg, index)
+        execution.check_keeps_ticks(cfg, index)
     except ValueError as err:
         raise UserError(f"SCENARIO: {err}") from None
     with _render_errors():
@@ -968,12 +968,12 @@ def _render_choice(sw, pattern: str) -> list[int]:
     """Indices of the scenarios of ``sw`` whose names match ``pattern`` (``--render``); a user
     error, before anything runs, for a bad pattern, no match, a plant without a tick log, the
     video library missing or no OpenGL backend."""
-    from hlip_jax import rollout
+    from hlip_jax import execution
     cfgs = list(sw.scenarios)
     chosen = _matching([c.name for c in cfgs], pattern, "--render")
     for i in chosen:
         try:
-            rollout.check_keeps_ticks(cfgs[i], i)
+            execution.check_keeps_ticks(cfgs[i], i)
         except ValueError as err:
             raise UserError(f"--render: {err}") from None
     with _render_errors():

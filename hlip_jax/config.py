@@ -225,7 +225,7 @@ class ScenarioConfig:
 
 
 #: settings that are array shapes or compiled solver settings: one value for every scenario of
-#: a batch (:func:`hlip_jax.rollout.build`) and of a sweep (:mod:`hlip_jax.sweep`)
+#: a batch (:func:`hlip_jax.arrays.build`) and of a sweep (:mod:`hlip_jax.sweep`)
 STATIC_FIELDS = ("plant", "mpc.horizon", "mpc.viability", "mpc.qp_max_iter", "mpc.qp_eps",
                  "cassie.qp_max_iter", "cassie.qp_eps", "impl.qp_loop", "impl.qp_linsys",
                  "impl.qp_kernel", "impl.condense", "impl.terms", "impl.physics")

@@ -3,7 +3,7 @@
 A chunk of scenarios is one compiled call; without news from inside it a long chunk shows
 nothing until it ends.  While someone listens (:func:`listening`, checked by :func:`active`
 when the chunk starts) the rollout runs its walking steps in segments of one compiled program
-and calls :func:`step_done` from Python after each segment (:func:`hlip_jax.rollout.run`): no
+and calls :func:`step_done` from Python after each segment (:func:`hlip_jax.execution.run`): no
 host callback is compiled into the loop, so the loop's executable can be kept on disk."""
 
 from __future__ import annotations

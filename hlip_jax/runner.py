@@ -101,9 +101,9 @@ def chunk_configs(configs: list, batch: int, i: int) -> list:
 
 def _default_simulate(configs):
     """The closed loop with sweep-wide array shapes, so every chunk reuses one compile."""
-    from hlip_jax import rollout
-    shapes = rollout.shapes_of(configs)
-    return functools.partial(rollout.simulate, shapes=shapes)
+    from hlip_jax import arrays, execution
+    shapes = arrays.shapes_of(configs)
+    return functools.partial(execution.simulate, shapes=shapes)
 
 
 def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resume: bool = False,
@@ -121,7 +121,7 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
         verified in full (:func:`store.chunk_problem`) and a bad one is simulated again, named on
         the progress stream.
       overwrite: discard an existing run in ``out_dir`` (its manifest, chunks, summary).
-      simulate: ``configs -> Log`` (default :func:`hlip_jax.rollout.simulate`).
+      simulate: ``configs -> Log`` (default :func:`hlip_jax.execution.simulate`).
       max_chunks: stop after simulating this many chunks (interruptions, tests).
       with_coverage: compute the invariant-set coverage metrics per scenario (≈ 30 ms per
         scenario on a CPU core after a one-time JIT warm-up; False leaves those columns NaN,

@@ -125,7 +125,7 @@ MAX_NAME_LEN, MAX_PATH_NAME_LEN = 100, 64
 #: characters a sweep or path name may hold (it becomes a file or directory name)
 _NAME_RE = re.compile(r"[A-Za-z0-9 _.+=,@()-]+")
 _NAME_ALLOWED = "letters, digits, spaces and . _ - + = , @ ( ) (no slashes)"
-#: settings that are array shapes or compiled solver settings (:func:`hlip_jax.rollout.build`
+#: settings that are array shapes or compiled solver settings (:func:`hlip_jax.arrays.build`
 #: requires them equal across a batch): one value per sweep
 STATIC_FIELDS = C.STATIC_FIELDS
 
@@ -385,7 +385,7 @@ def _check_s2s(cfg: C.ScenarioConfig, where: str) -> None:
 def _check_tube(cfg: C.ScenarioConfig, where: str) -> None:
     """A robust MPC needs a bounded E (a Schur-stable A + B K on [c, p, v]), one gain in both
     planes for a heading-frame W, and non-empty tightened step limits (hlip_jax.robust)."""
-    from hlip_jax import robust, rollout
+    from hlip_jax import arrays, robust
     m = cfg.mpc
     if m.mode != "tube":
         raise SweepError(f"{where}: mpc.mode: {m.mode!r} with mpc.robust = true; allowed: 'tube' "
@@ -395,8 +395,8 @@ def _check_tube(cfg: C.ScenarioConfig, where: str) -> None:
                          "true (without the c term the COM position error has no bounded E)")
     _check_w_shape(m, where)
     try:
-        A, B = rollout.s2s_of(cfg)
-        t = rollout.tube_of(cfg, A, B)
+        A, B = arrays.s2s_of(cfg)
+        t = arrays.tube_of(cfg, A, B)
         robust.check_limits(t, m.step_length_min, m.step_length_max, m.step_width_min,
                             m.step_width_max)
     except ValueError as err:

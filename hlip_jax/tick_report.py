@@ -220,15 +220,15 @@ def runs(out_dir, indices, *, alone: bool = False):
 
 def _simulated(man: dict, configs: list, indices, alone: bool):
     """:func:`runs`' generator."""
-    from hlip_jax import rollout, runner
+    from hlip_jax import arrays, execution, runner
     if alone:
         for i in indices:
-            yield (i, configs[i], *rollout.simulate_ticks(configs, i), "alone")
+            yield (i, configs[i], *execution.simulate_ticks(configs, i), "alone")
         return
-    batch, shapes = int(man["batch"]), rollout.shapes_of(configs)
+    batch, shapes = int(man["batch"]), arrays.shapes_of(configs)
     for chunk in sorted({i // batch for i in indices}):
         mine = sorted({i for i in indices if i // batch == chunk})
-        out = rollout.simulate_chunk_ticks(runner.chunk_configs(configs, batch, chunk),
+        out = execution.simulate_chunk_ticks(runner.chunk_configs(configs, batch, chunk),
                                            [i % batch for i in mine], shapes=shapes)
         for i, (step_log, ticks) in zip(mine, out):
             yield i, configs[i], step_log, ticks, "chunk"

@@ -24,7 +24,7 @@ on disk and take the ordinary jitted call, as do runs over several processes, ru
 ``jax.disable_jit`` and installs without ``flatbuffers`` (jax.export's serializer); such a
 call is still compiled ahead beside the others by :func:`compile_together` (traced again in
 every process, though).  A
-program run by several devices of this process (:func:`hlip_jax.rollout.run`'s per-device
+program run by several devices of this process (:func:`hlip_jax.execution.run`'s per-device
 loops: their name says how many) is stored with its device split and compiled for the
 arguments' placement; programs XLA partitions over several GPUs are not given to the cache
 (the rollout calls them directly).  The directory is ``<compilation cache>/traces``; the CLI's
@@ -94,7 +94,7 @@ def placement(args) -> Optional[tuple]:
     """The ids of the devices the arguments' first leaf is committed to (None for host or
     uncommitted arrays): executables compiled ahead are kept per placement, since the
     closed loop may run the same program on several devices at once
-    (:func:`hlip_jax.rollout.run_each`)."""
+    (:func:`hlip_jax.execution.run_each`)."""
     leaves = jax.tree.leaves(args)
     leaf = leaves[0] if leaves else None
     if leaf is None or not getattr(leaf, "committed", False):
@@ -104,7 +104,7 @@ def placement(args) -> Optional[tuple]:
 
 #: what an executable compiled ahead raises for arguments it was not compiled for: other
 #: types or a committed array where the lowering had none (TypeError), arrays on another device
-#: (ValueError; :func:`hlip_jax.rollout.run_each` gives one program's calls to several devices)
+#: (ValueError; :func:`hlip_jax.execution.run_each` gives one program's calls to several devices)
 PLACEMENT_ERRORS = (TypeError, ValueError)
 
 _loaded: dict[str, Program] = {}      # key -> program, for the rest of the process

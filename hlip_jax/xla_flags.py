@@ -12,7 +12,7 @@ runs were equal bit for bit, at the same speed for that batch.  The CPU backend 
 core: on the 2-core machine a sweep ran faster pinned to one core than free on two.  With
 ``--xla_force_host_platform_device_count=N`` (N = the cores this process may use) the CPU
 backend has N devices and a sweep's scenarios are split over them, each device running its
-share of the loop on its own core (:func:`hlip_jax.rollout.run`; 1.2–1.4× on 2 cores,
+share of the loop on its own core (:func:`hlip_jax.execution.run`; 1.2–1.4× on 2 cores,
 docs/benchmarks/sweeps.md, "CPU cores as devices").  jaxlib 0.10's LAPACK kernels wait on XLA's CPU
 thread pool for their batch's tasks; with every pool thread busy running a device's program
 none is left for those tasks and the process hangs, so the pool is given 2N threads

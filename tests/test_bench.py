@@ -43,10 +43,10 @@ def test_a_cut_off_bench_keeps_what_it_measured(monkeypatch, tmp_path):
 
     import numpy as np
 
-    from hlip_jax import cli, rollout
+    from hlip_jax import cli, execution
 
     heard = []
-    monkeypatch.setattr(rollout, "run", lambda batch, static: {"status": np.zeros(2)})
+    monkeypatch.setattr(execution, "run", lambda batch, static: {"status": np.zeros(2)})
     bench.timed_run(None, None, heard.append, "b")
     assert heard[0] == "b: compile + first run started"
     assert heard[1].startswith("b: compile + first run took ") and heard[1].endswith("timed run started")

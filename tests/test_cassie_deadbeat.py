@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hlip_jax import hlip, rollout, sweep
+from hlip_jax import arrays, hlip, sweep
 from hlip_jax.plants.cassie import gaits
 
 PRESET = gaits.PRESETS["paper"]
@@ -30,7 +30,7 @@ gait = "paper"
 [[paths]]
 shape = "line"
 """
-    return rollout.stepping_gain(sweep.parse_sweep(text).scenarios[0])
+    return arrays.stepping_gain(sweep.parse_sweep(text).scenarios[0])
 
 
 def _classic(z0, t_s, t_d, g=9.81):

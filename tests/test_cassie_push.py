@@ -11,7 +11,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hlip_jax import metrics, rollout, steplog, store, sweep
+from hlip_jax import execution, metrics, steplog, store, sweep
 
 
 @pytest.mark.slow
@@ -22,7 +22,7 @@ def test_the_paper_push_is_survived_and_recovered():
     push = cfg.disturbance.pushes[0]
     assert (push.force, push.direction, push.time) == (200.0, 90.0, 10.0)
     cfg = dataclasses.replace(cfg, duration=15.0)            # 5 s after the push
-    log = store.log_to_arrays(rollout.simulate([cfg]), 1)
+    log = store.log_to_arrays(execution.simulate([cfg]), 1)
     assert int(log["status"][0]) == steplog.STATUS_OK
     m = metrics.scenario_metrics(log, 0, False, metrics.push_windows(cfg))
     assert m["push_peak_err"] > 0.15                         # the push did move it off the path

@@ -265,10 +265,10 @@ def test_config_to_params_and_validation():
     assert plant.make_params(ScenarioConfig(plant="cassie"), 1).real is None
     ideal = plant.make_params(ScenarioConfig(plant="cassie"), 1, non_ideal=True).real
     assert ideal.latency.dtype == np.int32 and not bool(ideal.noisy) and ideal.period == 1
-    from hlip_jax import rollout
+    from hlip_jax import arrays
     ideal_cfg = ScenarioConfig(plant="cassie")
-    assert not rollout.shapes_of([ideal_cfg, ideal_cfg]).non_ideal
-    assert rollout.shapes_of([ideal_cfg, cfg]).non_ideal
+    assert not arrays.shapes_of([ideal_cfg, ideal_cfg]).non_ideal
+    assert arrays.shapes_of([ideal_cfg, cfg]).non_ideal
     msg = plants.check(dataclasses.replace(cfg, plant="hlip"))
     assert msg.startswith("realism.latency: 3 models the Cassie robot; allowed with plant = 'hlip': 0")
 
@@ -292,14 +292,14 @@ def test_the_step_log_keeps_the_estimate_beside_the_truth():
     # point depends on the tick history, so a touchdown one tick apart changes all later
     # torques within the solver's tolerance, and the two robots' v differed by 0.062 m/s
     # after three steps (c, p by 2.9 mm): the comparison would measure that, not the detector.
-    from hlip_jax import metrics, rollout
+    from hlip_jax import execution, metrics
     from hlip_jax.config import CassieConfig, PathConfig
     base = ScenarioConfig(plant="cassie", duration=1.2, cassie=CassieConfig(qp_rho_start="default"),
                           path=PathConfig(shape="line", params=dict(peak_speed=0.3, length=2.0)))
     cfgs = [dataclasses.replace(base, realism=RealismConfig(**kw)) for kw in (
         dict(motor_lag=0.002), dict(velocity_filter=0.03),
         dict(joint_noise=0.005, imu_noise=0.005), dict(touchdown="kinematic"), dict())]
-    log = rollout.simulate(cfgs)._asdict()
+    log = execution.simulate(cfgs)._asdict()
     valid = log["valid"]
     assert valid[:, :4].all(), valid
     d = (log["x_est"] - log["x_robot"])[valid]            # (n, 2, 3)

@@ -221,13 +221,13 @@ def test_uneven_ground_makes_the_batch_carry_the_terrain_and_warp_is_refused(fie
     the step batches the block's, bit for bit); such a scenario outside such a batch is an
     error, and the Warp physics (no terrain) refuses it with a message naming the field; a
     step and rough ground together are refused."""
-    from hlip_jax import plants, rollout
+    from hlip_jax import arrays, plants
     from hlip_jax.plants.cassie import plant
     flat = C.ScenarioConfig(plant="cassie", duration=2.0)
     uneven = C.ScenarioConfig(plant="cassie", duration=2.0,
                               realism=C.RealismConfig(**{field: value}))
-    assert rollout.shapes_of([flat]).terrain == "flat"
-    assert rollout.shapes_of([flat, uneven]).terrain == kind
+    assert arrays.shapes_of([flat]).terrain == "flat"
+    assert arrays.shapes_of([flat, uneven]).terrain == kind
     assert plant.make_params(flat, 1, 0.0, True, "flat").terrain is None
     want = {"top": value, "rough_z": 0.0}[placed]
     assert float(getattr(plant.make_params(uneven, 1, 0.0, True, kind).terrain, placed)) == want

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from hlip_jax import rollout, sweep
+from hlip_jax import arrays, sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_SET = ROOT / "docs" / "cassie_protocol" / "cassie_test.toml"
@@ -88,7 +88,7 @@ def test_the_paper_paths_with_the_classic_deadbeat_gain(test_set):
     by_gain = defaultdict(set)
     for s in test_set:
         if s.name.startswith("paper-") and s.path.shape in PAPER_PATHS:
-            k = rollout.stepping_gain(s)
+            k = arrays.stepping_gain(s)
             by_gain[(s.gain.type, s.gain.with_position)].add(s.path.shape)
             if s.gain.type == "deadbeat" and not s.gain.with_position:
                 # K = [1, T_D + coth(lambda T_S)/lambda] on [p, v], nothing on c

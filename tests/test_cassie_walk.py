@@ -199,32 +199,32 @@ def test_make_params_pushes_and_validation():
     assert float(g.hold_unsolved) == 1.0
     cfg3 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_fallback="iterate", qp_max_iter=50))
     assert float(plant.make_params(cfg3, 1).gait.hold_unsolved) == 0.0
-    from hlip_jax import rollout
-    _, static = rollout.build([cfg3])
+    from hlip_jax import arrays
+    _, static = arrays.build([cfg3])
     assert static.plant_settings.qp.max_iter == 50 and static.plant_settings.qp.eps_abs == 1e-4
     assert static.plant_settings.physics == "jax"
     with pytest.raises(ValueError, match="cassie.qp_max_iter"):
-        rollout.build([cfg2, cfg3])
-    assert rollout.build([ScenarioConfig()])[1].plant_settings is None     # H-LIP plant
+        arrays.build([cfg2, cfg3])
+    assert arrays.build([ScenarioConfig()])[1].plant_settings is None     # H-LIP plant
     # the CLF-QP's block loop is static and sweep-wide too
-    assert rollout.build([cfg3])[1].plant_settings.qp.early_exit is True
+    assert arrays.build([cfg3])[1].plant_settings.qp.early_exit is True
     cfg4 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_max_iter=50),
                           impl=ImplConfig(qp_loop="fixed"))
-    assert rollout.build([cfg4])[1].plant_settings.qp.early_exit is False
+    assert arrays.build([cfg4])[1].plant_settings.qp.early_exit is False
     with pytest.raises(ValueError, match="impl.qp_loop"):
-        rollout.build([cfg3, cfg4])
+        arrays.build([cfg3, cfg4])
     cfg6 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_max_iter=50),
                           impl=ImplConfig(qp_loop="compact"))
-    compact = rollout.build([cfg6])[1].plant_settings
+    compact = arrays.build([cfg6])[1].plant_settings
     assert compact.qp.early_exit is True and compact.qp_compact is True
-    assert rollout.build([cfg3])[1].plant_settings.qp_compact is False
+    assert arrays.build([cfg3])[1].plant_settings.qp_compact is False
     # and so is its linear solve
     cfg5 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_max_iter=50),
                           impl=ImplConfig(qp_linsys="inverse"))
-    assert rollout.build([cfg5])[1].plant_settings.qp.linsys == "inverse"
-    assert rollout.build([cfg3])[1].plant_settings.qp.linsys == "cholesky"
+    assert arrays.build([cfg5])[1].plant_settings.qp.linsys == "inverse"
+    assert arrays.build([cfg3])[1].plant_settings.qp.linsys == "cholesky"
     with pytest.raises(ValueError, match="impl.qp_linsys"):
-        rollout.build([cfg3, cfg5])
+        arrays.build([cfg3, cfg5])
 
 
 def test_scenario_model_sets_the_spring_damping():

@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from hlip_jax import bench, rollout
+from hlip_jax import arrays, bench, execution
 from hlip_jax.config import ImplConfig, ScenarioConfig
 from hlip_jax.plants.cassie import control, model, plant, warp_physics
 from hlip_jax.plants.cassie.mjx_import import mjx
@@ -27,7 +27,7 @@ def test_warp_needs_warp_lang_and_is_static(monkeypatch):
     pytest.importorskip("warp")
     assert plant.settings(cfg).physics == "warp"
     with pytest.raises(ValueError, match="impl.physics"):          # static: one per batch
-        rollout.build([cfg, ScenarioConfig(plant="cassie")])
+        arrays.build([cfg, ScenarioConfig(plant="cassie")])
 
 
 def test_a_warp_sweep_without_warp_lang_is_refused_before_it_runs(tmp_path, capsys, monkeypatch):
@@ -117,7 +117,7 @@ def test_closed_loop_on_warp_walks_like_on_jax():
     # within 0.15 m (the path-tracking scale) after ten.
     pytest.importorskip("warp")
     base = bench.configs(3, 3.0)[2]
-    logs = {ph: rollout.simulate([dataclasses.replace(
+    logs = {ph: execution.simulate([dataclasses.replace(
         base, impl=dataclasses.replace(base.impl, physics=ph))]) for ph in ("jax", "warp")}
     a, b = logs["jax"], logs["warp"]
     assert int(a.status[0]) == 0 and int(b.status[0]) == 0

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hlip_jax import rollout, steplog, sweep
+from hlip_jax import execution, steplog, sweep
 from hlip_jax import config as C
 
 LINE = C.PathConfig(shape="line", params=dict(peak_speed=0.5, length=10.0))
@@ -33,7 +33,7 @@ def test_limits_that_never_bind_change_nothing():
     picks the swing side right (a wrong side would fold every lateral step over)."""
     wide = dataclasses.replace(C.CassieConfig(), step_width_min=0.0, step_width_max=1.0,
                                step_length_max=1.0)
-    log = rollout.simulate([_cfg(False), _cfg(True, wide)])
+    log = execution.simulate([_cfg(False), _cfg(True, wide)])
     assert log.status.tolist() == [steplog.STATUS_OK] * 2
     np.testing.assert_array_equal(log.u_robot[0], log.u_robot[1])
     np.testing.assert_array_equal(log.x_robot[0], log.x_robot[1])
@@ -46,7 +46,7 @@ def test_a_push_towards_the_stance_side_meets_the_width_bounds():
     a bound."""
     push = (C.PushConfig(time=5.0, duration=0.1, force=200.0, direction=-90.0),)
     c = C.CassieConfig()
-    log = rollout.simulate([_cfg(False, c, push), _cfg(True, c, push)])
+    log = execution.simulate([_cfg(False, c, push), _cfg(True, c, push)])
     free, held = _width(log, 0), _width(log, 1)
     assert free.min() < c.step_width_min or free.max() > c.step_width_max
     assert held.min() >= c.step_width_min - 1e-12 and held.max() <= c.step_width_max + 1e-12

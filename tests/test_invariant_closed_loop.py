@@ -7,7 +7,7 @@ step, so the true W of w = x_{k+1} − A x_k − B u_k is the box [±a, ±a, ±b
 import numpy as np
 import pytest
 
-from hlip_jax import invariant, rollout
+from hlip_jax import execution, invariant
 from hlip_jax.config import DisturbanceConfig, PathConfig, ScenarioConfig
 
 NOISE_P, NOISE_V = 0.004, 0.02
@@ -19,7 +19,7 @@ def log():
                            path=PathConfig(shape=shape, params=dict(peak_speed=0.5)),
                            disturbance=DisturbanceConfig(noise_p=NOISE_P, noise_v=NOISE_V))
             for i, shape in enumerate(["circle", "sinusoid", "square", "cardioid"] * 4)]
-    return rollout.simulate(cfgs)
+    return execution.simulate(cfgs)
 
 
 def test_estimated_w_converges_to_the_true_box(log):

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hlip_jax import hlip, mpc, qp, rollout, sweep
+from hlip_jax import arrays, execution, hlip, mpc, qp, sweep
 from tests.test_mpc import _osqp, _params
 
 
@@ -150,8 +150,8 @@ def test_a_capped_plan_keeps_the_hlip_walking_only_with_the_rows(tmp_path):
         f = tmp_path / f"{value}.toml"
         f.write_text(SWEEP.format(value=value))
         cfgs = sweep.load_sweep(f).scenarios
-        log = rollout.simulate(cfgs)
-        out[value] = (np.asarray(log.valid[0]), np.asarray(log.x_hlip[0]), rollout.n_steps_of(cfgs[0]))
+        log = execution.simulate(cfgs)
+        out[value] = (np.asarray(log.valid[0]), np.asarray(log.x_hlip[0]), arrays.n_steps_of(cfgs[0]))
     valid, _, n = out["false"]
     assert valid.sum() < n // 2
     valid, x, n = out["true"]

@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 
 from hlip_jax import config as C
-from hlip_jax import hlip, mpc, resources, robust, rollout, sweep
+from hlip_jax import arrays, execution, hlip, mpc, resources, robust, sweep
 
 
 def _plane(gain_type="lqr"):
     h = C.HLIPConfig(z0=0.8, t_ssp=0.3, t_dsp=0.1)
     A, B = (np.asarray(a, np.float64) for a in hlip.s2s_matrices(0.8, 0.3, 0.1, with_position=True))
-    K = rollout._plane_gain(h, C.GainConfig(type=gain_type))[0]
+    K = arrays._plane_gain(h, C.GainConfig(type=gain_type))[0]
     return A, B, K, A + np.outer(B, K)
 
 
@@ -121,11 +121,11 @@ def test_rows_shrink_by_the_support_of_the_tube(frame):
 def test_tube_keeps_the_com_out_of_every_disc_on_the_hlip_plant():
     sw = sweep.load_sweep(resources.data_dir("sweeps") / "robust_mpc.toml")
     cfgs = [c for c in sw.scenarios if c.swept["seed"] in (1, 2, 3) and c.gain.type == "lqr"]
-    log = rollout.simulate(cfgs)
+    log = execution.simulate(cfgs)
     valid = np.asarray(log.valid)
     clear = np.where(valid, np.asarray(log.clearance), np.inf).min(axis=1)
     robust_on = np.array([c.mpc.robust for c in cfgs])
-    assert np.all(valid[robust_on].sum(axis=1) == rollout.n_steps_of(cfgs[0])), "all walk"
+    assert np.all(valid[robust_on].sum(axis=1) == arrays.n_steps_of(cfgs[0])), "all walk"
     assert np.all(clear[robust_on] >= 0.0), clear[robust_on]
     assert np.any(clear[~robust_on] < 0.0), "the nominal MPC violates some disc on these seeds"
 

@@ -6,7 +6,7 @@ All scenarios run in one compiled, vmapped call (a module fixture), as a sweep w
 import numpy as np
 import pytest
 
-from hlip_jax import rollout, steplog
+from hlip_jax import arrays, execution, rollout, steplog
 from hlip_jax.analysis import errors
 from hlip_jax.config import (DisturbanceConfig, ObstacleConfig, PathConfig, PushConfig,
                              ScenarioConfig)
@@ -57,7 +57,7 @@ def _cases():
 def run():
     cases = _cases()
     names = list(cases)
-    log = rollout.simulate([cases[n] for n in names])
+    log = execution.simulate([cases[n] for n in names])
     return names, cases, log
 
 
@@ -155,7 +155,7 @@ def test_failure_is_isolated(run):
     assert log.fail_step[i] >= 0
     assert not log.valid[i, log.fail_step[i] + 1:].any()
     benign = [cases["push"] if n == "fall" else cases[n] for n in names]
-    other = rollout.simulate(benign)
+    other = execution.simulate(benign)
     for j, n in enumerate(names):
         if n != "fall":
             np.testing.assert_array_equal(other.x_robot[j], log.x_robot[j], err_msg=n)
@@ -240,8 +240,8 @@ def test_stepping_gain_per_plane():
     from hlip_jax.config import GainConfig, HLIPConfig, ScenarioConfig
     h = HLIPConfig(z0=0.85, t_ssp=0.26, t_dsp=0.02)
     lqr = GainConfig(type="lqr", q_c=0.05, q_v=0.25, r=4.0)
-    K0 = rollout.stepping_gain(ScenarioConfig(hlip=h, gain=lqr))
-    K1 = rollout.stepping_gain(ScenarioConfig(hlip=h, gain=GainConfig(
+    K0 = arrays.stepping_gain(ScenarioConfig(hlip=h, gain=lqr))
+    K1 = arrays.stepping_gain(ScenarioConfig(hlip=h, gain=GainConfig(
         type="lqr", q_c=0.05, q_v=0.25, r=4.0, lateral="deadbeat")))
     np.testing.assert_array_equal(K1[0], K0[0])
     np.testing.assert_array_equal(K0[0], K0[1])
@@ -260,9 +260,9 @@ def test_progress_news_from_inside_the_loop():
                            duration=4.0) for v in (0.3, 0.6)]
     heard = []
     with progress.listening(lambda k, n: heard.append((k, n))):
-        loud = rollout.simulate(cfgs)
+        loud = execution.simulate(cfgs)
     assert not progress.active()
-    quiet = rollout.simulate(cfgs)
+    quiet = execution.simulate(cfgs)
     K = loud.t.shape[1]
     L = rollout.segment_length(K)
     assert heard == [(min(k + L, K), K) for k in range(0, K, L)] and len(heard) > 1

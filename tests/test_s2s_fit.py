@@ -4,7 +4,7 @@ known in closed form (hlip.s2s_matrices at the plant's own z0, T_SSP, T_DSP)."""
 import numpy as np
 import pytest
 
-from hlip_jax import hlip, rollout, s2s_fit
+from hlip_jax import execution, hlip, s2s_fit
 from hlip_jax.config import DisturbanceConfig, PathConfig, ScenarioConfig
 
 
@@ -12,7 +12,7 @@ def _log(dist: DisturbanceConfig, seeds=(1, 2, 3)):
     cfgs = [ScenarioConfig(plant="hlip", seed=s, duration=15.0, disturbance=dist,
                            path=PathConfig(shape="line", params=dict(peak_speed=0.4, length=8.0)))
             for s in seeds]
-    return cfgs, rollout.simulate(cfgs)._asdict()
+    return cfgs, execution.simulate(cfgs)._asdict()
 
 
 def test_fit_recovers_the_plants_own_map_exactly(float64):

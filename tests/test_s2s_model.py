@@ -10,7 +10,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hlip_jax import cli, config as C, hlip, rollout, runner, s2s_model, store, sweep
+from hlip_jax import arrays, cli, config as C, hlip, runner, s2s_model, store, sweep
 
 A2 = np.array([[1.3, 0.2], [2.4, 1.2]])
 B2 = np.array([-1.25, -2.0])
@@ -170,10 +170,10 @@ def test_gain_on_an_identified_map_is_designed_on_it(tmp_path):
     f = s2s_model.write(tmp_path / "m.npz",
                         s2s_model.Model(A2, B2, OFFSET, np.zeros(2), 10, 7, (0.8, 0.3, 0.1)))
     base = C.ScenarioConfig(s2s=C.S2SConfig(model="identified", file=str(f)))
-    A3, B3 = rollout.s2s_of(base)
+    A3, B3 = arrays.s2s_of(base)
     for g in (C.GainConfig(type="deadbeat"), C.GainConfig(type="lqr"),
               C.GainConfig(type="deadbeat", with_position=False)):
-        K = rollout.stepping_gain(dataclasses.replace(base, gain=g))[0]
+        K = arrays.stepping_gain(dataclasses.replace(base, gain=g))[0]
         n = 3 if g.with_position else 2
         A, B, k = A3[3 - n:, 3 - n:], B3[3 - n:], K[3 - n:]
         eig = np.abs(np.linalg.eigvals(A + np.outer(B, k)))

@@ -16,7 +16,7 @@ import jax
 import numpy as np
 import pytest
 
-from hlip_jax import rollout, runner, store, sweep
+from hlip_jax import execution, runner, store, sweep
 from hlip_jax.config import PathConfig, ScenarioConfig
 
 SMALL_SWEEP = textwrap.dedent("""
@@ -47,10 +47,10 @@ def test_one_compile_per_sweep(tmp_path):
     the first chunk compiles, later chunks hit the cache."""
     sw = sweep.parse_sweep(SMALL_SWEEP, source="scale-test.toml")
     assert len(sw.scenarios) == 6
-    before = rollout.compiled_loops()
+    before = execution.compiled_loops()
     res = runner.run_sweep(sw, tmp_path / "out", batch=2, progress=False, with_coverage=False)
     assert res.complete and res.chunks_run == 3
-    assert rollout.compiled_loops() - before == 1
+    assert execution.compiled_loops() - before == 1
 
 
 SHARDED = textwrap.dedent("""
@@ -61,21 +61,21 @@ SHARDED = textwrap.dedent("""
     jax.config.update("jax_enable_x64", True)
     import numpy as np
     from pathlib import Path
-    from hlip_jax import progress, rollout, trace_cache
+    from hlip_jax import arrays, execution, progress, trace_cache
     from hlip_jax.config import PathConfig, ScenarioConfig
     trace_cache.enable(Path(sys.argv[1]))
     cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
             for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("square", 0.4),
                                         ("sinusoid", 0.6), ("cardioid", 0.5)])]
     assert len(jax.devices()) == 4
-    batch, _ = rollout.build(cfgs + [cfgs[-1]] * 3)
-    placed = rollout.place(batch, rollout.scenario_sharding())
+    batch, _ = arrays.build(cfgs + [cfgs[-1]] * 3)
+    placed = execution.place(batch, execution.scenario_sharding())
     devs = {d.id for d in placed.x0.sharding.device_set}
-    multi = rollout.simulate(cfgs)
+    multi = execution.simulate(cfgs)
     with progress.listening(lambda k, n: None):          # the segmented loop
-        segmented = rollout.simulate(cfgs)
-    whole, start, segment = rollout._programs(placed.x0.sharding.mesh)
-    single = rollout.simulate(cfgs, devices=jax.devices()[:1])
+        segmented = execution.simulate(cfgs)
+    whole, start, segment = execution._programs(placed.x0.sharding.mesh)
+    single = execution.simulate(cfgs, devices=jax.devices()[:1])
     diff = float(np.nanmax(np.abs(multi.x_robot - single.x_robot)))
     print(json.dumps({"devices": sorted(devs), "diff": diff, "S": int(multi.x_robot.shape[0]),
                       "segmented_diff": float(np.nanmax(np.abs(segmented.x_robot
@@ -131,19 +131,19 @@ def test_a_cpu_pool_no_larger_than_the_devices_is_refused(monkeypatch):
     class Elsewhere:       # two devices of this process, two of another
         size = 4
         devices = np.array([jax.devices("cpu")[0]] * 2 + [Other()] * 2)
-    monkeypatch.setattr(rollout, "_jaxlib_version", lambda: (0, 10))
+    monkeypatch.setattr(execution, "_jaxlib_version", lambda: (0, 10))
     monkeypatch.delenv("NPROC", raising=False)
     monkeypatch.setenv("PJRT_NPROC", "2")
     with pytest.raises(RuntimeError, match="PJRT_NPROC=4"):
-        rollout._check_cpu_pool(Mesh())
+        execution._check_cpu_pool(Mesh())
     with pytest.raises(RuntimeError, match="2 CPU devices of this process"):
-        rollout._check_cpu_pool(Elsewhere())
+        execution._check_cpu_pool(Elsewhere())
     monkeypatch.setenv("PJRT_NPROC", "3")
-    rollout._check_cpu_pool(Mesh())
-    rollout._check_cpu_pool(Elsewhere())
+    execution._check_cpu_pool(Mesh())
+    execution._check_cpu_pool(Elsewhere())
     monkeypatch.setenv("PJRT_NPROC", "2")
-    monkeypatch.setattr(rollout, "_jaxlib_version", lambda: (0, 11))
-    rollout._check_cpu_pool(Mesh())
+    monkeypatch.setattr(execution, "_jaxlib_version", lambda: (0, 11))
+    execution._check_cpu_pool(Mesh())
 
 
 DISPATCHED = textwrap.dedent("""
@@ -153,13 +153,13 @@ DISPATCHED = textwrap.dedent("""
     if len(sys.argv) > 2:                  # process id and coordinator port of a two-process run
         jax.distributed.initialize(f"localhost:{sys.argv[2]}", 2, int(sys.argv[1]))
     import numpy as np
-    from hlip_jax import progress, rollout
+    from hlip_jax import arrays, execution, progress
     from hlip_jax.config import PathConfig, ScenarioConfig
     cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
             for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("square", 0.4)])]
-    whole = rollout.simulate(cfgs, spread="dispatch")
+    whole = execution.simulate(cfgs, spread="dispatch")
     with progress.listening(lambda k, n: None):          # the segmented loop
-        segmented = rollout.simulate(cfgs, spread="dispatch")
+        segmented = execution.simulate(cfgs, spread="dispatch")
     print(json.dumps({"devices": len(jax.devices()), "x": np.nan_to_num(whole.x_robot).tolist(),
                       "x_seg": np.nan_to_num(segmented.x_robot).tolist(),
                       "status": whole.status.tolist()}))
@@ -181,12 +181,12 @@ def _result(p: subprocess.Popen) -> dict:
 def _single_device():
     cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
             for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("square", 0.4)])]
-    return rollout.simulate(cfgs, devices=jax.devices()[:1])
+    return execution.simulate(cfgs, devices=jax.devices()[:1])
 
 
 @pytest.mark.timeout(300)
 def test_blocks_dispatched_over_two_devices_equal_one_device(float64):
-    """The GPUs' way of sharing a batch (rollout.spread_of: one block per device, each device
+    """The GPUs' way of sharing a batch (execution.spread_of: one block per device, each device
     running the one-device program, dispatched together), on two CPU devices of one process:
     3 H-LIP scenarios padded to 4, two per device; whole-run and segmented loops equal the
     one-device run to 1e-9 (the same float64 loop on a batch of 2 instead of 3)."""

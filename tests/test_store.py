@@ -319,7 +319,7 @@ def test_missing_results_dir(tmp_path):
 def test_kill_and_resume_real_closed_loop(tmp_path):
     """Same equality with the real H-LIP closed loop (one compile, reused in-process):
     resumed chunks must be bit-identical, i.e. the rollout is deterministic per chunk."""
-    from hlip_jax import rollout
+    from hlip_jax import execution
     sw = sweep.parse_sweep("""
 [base]
 duration = 2.0
@@ -330,12 +330,12 @@ shape = "circle"
 [grid.product]
 "gain.type" = ["deadbeat", "lqr"]
 """)
-    runner.run_sweep(sw, tmp_path / "ref", batch=1, progress=False, simulate=rollout.simulate)
+    runner.run_sweep(sw, tmp_path / "ref", batch=1, progress=False, simulate=execution.simulate)
     r1 = runner.run_sweep(sw, tmp_path / "part", batch=1, progress=False,
-                         simulate=rollout.simulate, max_chunks=1)
+                         simulate=execution.simulate, max_chunks=1)
     assert not r1.complete
     r2 = runner.run_sweep(sw, tmp_path / "part", resume=True, progress=False,
-                         simulate=rollout.simulate)
+                         simulate=execution.simulate)
     assert r2.complete and r2.chunks_skipped == 1 and r2.chunks_run == 1
     a, b = _arrays(tmp_path / "ref"), _arrays(tmp_path / "part")
     for f in a:

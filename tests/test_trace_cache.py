@@ -13,7 +13,7 @@ import os
 import numpy as np
 import pytest
 
-from hlip_jax import compile_cache, rollout, trace_cache
+from hlip_jax import arrays, compile_cache, execution, trace_cache
 from hlip_jax.config import PathConfig, ScenarioConfig
 
 CONFIGS = [ScenarioConfig(duration=2.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
@@ -29,11 +29,11 @@ def cache(tmp_path):
 
 
 def _run(progress: bool, max_iter=None):
-    batch, static = rollout.build(CONFIGS)
+    batch, static = arrays.build(CONFIGS)
     static = static._replace(progress=progress)
     if max_iter is not None:
         static = static._replace(settings=static.settings._replace(max_iter=max_iter))
-    return rollout.run(batch, static)
+    return execution.run(batch, static)
 
 
 def _plain(progress: bool, **kw):
@@ -129,14 +129,14 @@ def test_a_loop_that_cannot_be_exported_runs_plain(cache, monkeypatch):
     monkeypatch.setattr(trace_cache.jax_export, "export", refuse)
     out = _run(False)
     assert [p.suffix for p in cache.iterdir()] == [trace_cache.REFUSED]   # marked, not stored
-    assert trace_cache.loaded("_run_whole") == 0
+    assert trace_cache.loaded("run_whole") == 0
     _assert_equal(out, _plain(False))
     trace_cache._loaded.clear()                                            # a later process
     _run(False)
     assert len(calls) == 1                                                 # does not try again
 
 
-@pytest.mark.parametrize("refused", [("_start_batch", "_segment_batch"), ("_segment_batch",)],
+@pytest.mark.parametrize("refused", [("start_batch", "segment_batch"), ("segment_batch",)],
                          ids=["both", "segment"])
 def test_programs_that_cannot_be_exported_compile_ahead_in_threads(cache, monkeypatch, refused):
     """Without an exported program (MJX's Warp physics: the segment steps it, the start does
@@ -164,7 +164,7 @@ def test_programs_that_cannot_be_exported_compile_ahead_in_threads(cache, monkey
         out = _run(True, max_iter=31 + len(refused))    # static settings no other test compiles
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
-    names = {"jit(_start_batch)": "start", "jit(_segment_batch)": "segment", "jit(call)": "stored"}
+    names = {"jit(start_batch)": "start", "jit(segment_batch)": "segment", "jit(call)": "stored"}
     loops = [(names[f], t) for f, t in compiles if f in names]
     expected = ["segment", "start"] if len(refused) == 2 else ["segment", "stored"]
     assert sorted(f for f, _ in loops) == expected

@@ -182,20 +182,20 @@ def test_terms_is_a_static_setting():
 def test_a_walking_step_computes_every_term_as_set(monkeypatch, noisy):
     # the ticks, the step's end (the true state the S2S log records) and, with sensor noise,
     # the estimated state all compute the whole-body terms the way impl.terms says
-    from hlip_jax import bench, config, rollout
+    from hlip_jax import arrays, bench, config, rollout
     base = bench.configs(1, 1.0)[0]
     real = config.RealismConfig(joint_noise=0.5) if noisy else base.realism
     cfg = dataclasses.replace(base, realism=real,
                               impl=dataclasses.replace(base.impl, terms="dense"))
-    batch, static = rollout.build([cfg])
-    carry = jax.eval_shape(lambda b: rollout._start_batch(b, static), batch)[0]
+    batch, static = arrays.build([cfg])
+    carry = jax.eval_shape(lambda b: rollout.start_batch(b, static), batch)[0]
     seen, inner = [], model.robot_terms
 
     def recording(cassie, d, mx=None, terms="mjx"):
         seen.append(terms)
         return inner(cassie, d, mx, terms)
     monkeypatch.setattr(model, "robot_terms", recording)
-    jax.eval_shape(lambda b, c: rollout._segment_batch(b, c, jax.numpy.arange(1), static),
+    jax.eval_shape(lambda b, c: rollout.segment_batch(b, c, jax.numpy.arange(1), static),
                    batch, carry)
     assert len(seen) >= (3 if noisy else 2) and set(seen) == {"dense"}, seen
 
@@ -209,9 +209,9 @@ def test_closed_loop_with_dense_terms_walks_as_with_mjx_terms(float64):
     # torques then differ at the solver's tolerance and the closed loop grows that ~10-30x per
     # step (observed: 3e-8 m after steps 1 and 2, 5e-7 after 3, 1e-5 after 4, 3e-3 after 6).
     # Held: the first three steps within 1e-6 m, every step within 1 cm, both walking.
-    from hlip_jax import bench, rollout
+    from hlip_jax import bench, execution
     base = bench.configs(3, 1.5)[2]
-    logs = {t: rollout.simulate([dataclasses.replace(
+    logs = {t: execution.simulate([dataclasses.replace(
         base, impl=dataclasses.replace(base.impl, terms=t))]) for t in ("mjx", "dense")}
     a, b = logs["mjx"], logs["dense"]
     assert int(a.status[0]) == 0 and int(b.status[0]) == 0

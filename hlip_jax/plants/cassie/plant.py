@@ -151,13 +151,13 @@ def make_params(cfg, n_push: int, t_step: float = 0.0, non_ideal: bool = False,
     "rough": with the block and the height field)."""
     if not non_ideal and cfg.realism != type(cfg.realism)():
         raise ValueError(f"realism: scenario {cfg.name!r} departs from the ideal plant; build "
-                         "it with non_ideal=True (rollout.shapes_of sets it for the batch)")
+                         "it with non_ideal=True (arrays.shapes_of sets it for the batch)")
     need = cfg.realism.ground_kind()
     if GROUND_KINDS.index(need) > GROUND_KINDS.index(ground):
         f = "rough_height" if need == "rough" else "step_height"
         raise ValueError(f"realism.{f}: scenario {cfg.name!r} has uneven ground; build it "
                          f"with ground in {GROUND_KINDS[GROUND_KINDS.index(need):]} "
-                         "(rollout.shapes_of sets it)")
+                         "(arrays.shapes_of sets it)")
     start, end, force = push_table(cfg.disturbance.pushes, n_push)
     ticks = np.zeros(tick_budget(max(t_step, step_span(cfg))))
     return Params(push_start=start, push_end=end, push_force=force, ticks=ticks,

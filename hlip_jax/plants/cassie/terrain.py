@@ -23,7 +23,7 @@ Both bodies, ``terrain`` (the box) and ``rough`` (the field), are appended after
 no index of the robot's bodies, joints, geoms or sites moves.  Only their positions and the
 field's heights change between scenarios, so one compiled program serves every step height and
 every rough draw (MJX takes them as model arrays).  A batch's ground is one of ``hlip_jax.plants.base.GROUND_KINDS``
-(``rollout.Shapes.terrain``): "flat", no terrain at all (the plain scene, bit for bit); "step",
+(``arrays.Shapes.terrain``): "flat", no terrain at all (the plain scene, bit for bit); "step",
 the block alone (a batch with steps walks the same scene whether or not the field exists);
 "rough", the block and the field, the unused one buried.
 
@@ -88,7 +88,7 @@ def make(step_height: float, step_x: float, rough_height: float = 0.0, seed: int
                          "or rough ground, not both")
     if rough_height != 0.0 and not field:
         raise ValueError("realism.rough_height: rough ground needs the scene with the height "
-                         "field (field=True; rollout.shapes_of sets the batch's kind 'rough')")
+                         "field (field=True; arrays.shapes_of sets the batch's kind 'rough')")
     f = np.float64
     if step_height > 0:
         floor, centre, top = f(0.0), f(step_x + HALF[0]), f(step_height)
