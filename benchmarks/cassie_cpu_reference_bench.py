@@ -1,6 +1,6 @@
 """CPU baseline of the standing CLF-QP: C MuJoCo + numpy + OSQP per tick, one robot per process.
 
-Runs ``benchmarks/cassie_cpu_reference.py`` (the same controller as the MJX/JAX one: model
+Runs ``tests/support/cassie_cpu_reference.py`` (the same controller as the MJX/JAX one: model
 terms → condensed dynamics → CLF-QP by OSQP → 2 × ``mj_step`` of 0.5 ms) in ``--procs``
 processes (default: one per core), each standing one robot from the keyframe for ``--seconds``
 of simulated time (COM target 2 cm below the start, as the standing tests).  The processes are
@@ -36,7 +36,8 @@ import platform
 import sys
 import time
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))   # cassie_cpu_reference
+# the repository root: tests.support.cassie_cpu_reference
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 _THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS",
                 "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
@@ -115,7 +116,7 @@ def _worker(rank: int, seconds: float, pin: bool, profile: bool, barrier, queue)
             os.sched_setaffinity(0, {rank % os.cpu_count()})
         import numpy as np
 
-        import cassie_cpu_reference as cr
+        from tests.support import cassie_cpu_reference as cr
 
         s = cr.static(cr.load_model())
         warm = cr.Robot(s)                                   # warm-up: caches, lazy inits
@@ -198,7 +199,7 @@ def main(argv=None):
     import numpy as np
     import osqp
 
-    import cassie_cpu_reference as cr
+    from tests.support import cassie_cpu_reference as cr
     from hlip_jax.plants.cassie import control
 
     ticks = sum(r["ticks"] for r in rows)

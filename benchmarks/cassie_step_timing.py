@@ -15,12 +15,15 @@ Walks robots from standing along straight orbits (no MPC: :func:`orbits.walk_orb
 from __future__ import annotations
 
 import argparse
+import pathlib
+import sys
 
 import numpy as np
 
-from hlip_jax.plants.cassie import gaits, outputs
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))   # the repository root
 
-import cassie_orbits as orbits  # benchmarks/ is on the path when this script runs
+from hlip_jax.plants.cassie import gaits, outputs  # noqa: E402
+from tests.support import cassie_orbits as orbits  # noqa: E402
 
 
 def main() -> None:

@@ -53,7 +53,8 @@ def main(argv=None):
     from hlip_jax import hlip
     from hlip_jax.plants.cassie import plant
 
-    import cassie_orbits as orbits  # benchmarks/ is on the path when this script runs
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the root
+    from tests.support import cassie_orbits as orbits
     dflt = orbits.WALK_DEFAULTS
     pick = lambda v, k: dflt[k] if v is None else v                     # noqa: E731
     z0, ts, td = pick(args.z0, "z0"), pick(args.t_ssp, "t_ssp"), pick(args.t_dsp, "t_dsp")

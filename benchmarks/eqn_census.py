@@ -18,8 +18,12 @@ is the part of the program XLA compiles (Warp itself needs a GPU).
 from __future__ import annotations
 
 import argparse
-import collections
+import pathlib
 import sys
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))   # the repository root
+
+from tests.support import jaxpr_census  # noqa: E402
 
 
 def _no_physics() -> None:
@@ -28,14 +32,6 @@ def _no_physics() -> None:
     def physics(cassie, d, ctrl, force, mx=None, backend="jax", robots=1):
         return d.replace(ctrl=ctrl)
     control.physics = physics
-
-
-def by_file(counts: collections.Counter) -> collections.Counter:
-    """Equations per source file from a :func:`scatter_census.census` of depth 1."""
-    files = collections.Counter()
-    for (_, where), n in counts.items():
-        files[where[0].rsplit(":", 1)[0] if where else "(jax)"] += n
-    return files
 
 
 def main(argv=None) -> None:
@@ -48,9 +44,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     if args.no_physics:
         _no_physics()
-    sys.path.insert(0, __file__.rsplit("/", 1)[0])
     import jax
-    import scatter_census
 
     from hlip_jax import arrays, rollout
     from hlip_jax.sweep import load_sweep
@@ -59,18 +53,18 @@ def main(argv=None) -> None:
     static = static._replace(progress=True)
     with jax.default_matmul_precision("highest"):
         if args.program == "start":
-            counts = scatter_census.census(lambda b: rollout.start_batch(b, static), batch,
-                                           depth=1, prefix="")
+            counts = jaxpr_census.census(lambda b: rollout.start_batch(b, static), batch,
+                                         depth=1, prefix="")
         else:
             carry = jax.eval_shape(lambda b: rollout.start_batch(b, static), batch)[0]
             ks = jax.numpy.arange(rollout.segment_length(static.n_steps))
-            counts = scatter_census.census(
+            counts = jaxpr_census.census(
                 lambda b, c, k: rollout.segment_batch(b, c, k, static), batch, carry, ks,
                 depth=1, prefix="")
     print(f"{args.sweep}: {len(cfgs)} scenarios, {args.program} program"
           f"{', physics left out' if args.no_physics else ''}: "
           f"{sum(counts.values())} equations", flush=True)
-    for f, n in by_file(counts).most_common(args.top):
+    for f, n in jaxpr_census.by_file(counts).most_common(args.top):
         print(f"  {n:6d}  {f}")
 
 

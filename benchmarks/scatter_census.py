@@ -7,48 +7,21 @@ lists, per stage of ``benchmarks/tick_profile.py``, the scatter primitives of it
 once each) grouped by the innermost two source frames outside JAX:
 
     python benchmarks/scatter_census.py --stages terms condense qp_build
+
+The counting itself is :func:`tests.support.jaxpr_census.census` (the tests use it too).
 """
 
 from __future__ import annotations
 
 import argparse
-import collections
-import os
+import pathlib
 import sys
 
 import jax
-from jax.extend import core
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))   # the repository root
 
-def _frames(eqn, depth: int) -> tuple[str, ...]:
-    """``file:line`` of the innermost ``depth`` frames of an equation outside JAX itself."""
-    from jax._src import source_info_util
-    frames = source_info_util.user_frames(eqn.source_info.traceback)
-    here = os.getcwd() + os.sep
-    return tuple(f"{f.file_name.split('site-packages/')[-1].replace(here, '')}:{f.start_line}"
-                 for f in list(frames)[:depth])
-
-
-def _walk(jaxpr, counts: collections.Counter, depth: int, prefix: str) -> None:
-    for eqn in jaxpr.eqns:
-        if eqn.primitive.name.startswith(prefix):
-            counts[(eqn.primitive.name, _frames(eqn, depth))] += 1
-        for p in eqn.params.values():
-            for sub in p if isinstance(p, (list, tuple)) else (p,):
-                if isinstance(sub, core.ClosedJaxpr):
-                    _walk(sub.jaxpr, counts, depth, prefix)
-                elif isinstance(sub, core.Jaxpr):
-                    _walk(sub, counts, depth, prefix)
-
-
-def census(fn, *args, depth: int = 2, prefix: str = "scatter") -> collections.Counter:
-    """(primitive name, source frames) → number of equations in ``fn``'s jaxpr whose
-    primitive's name starts with ``prefix`` (the scatters by default; "" counts every
-    equation).  Frames outside JAX only: an equation JAX's own functions issue (inside
-    ``jnp``'s jitted helpers) has none."""
-    counts = collections.Counter()
-    _walk(jax.make_jaxpr(fn)(*args).jaxpr, counts, depth, prefix)
-    return counts
+from tests.support.jaxpr_census import census  # noqa: E402
 
 
 def main(argv=None) -> None:

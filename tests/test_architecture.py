@@ -10,7 +10,9 @@ The rules of issue #53:
 * no private names across modules: ``from hlip_jax.X import _y`` or ``X._y`` with X another
   hlip_jax module.  A module's own tests may use its private names; other modules may not;
 * the sets and the MPC (``sets``, ``invariant``, ``robust``, ``mpc``) never import the
-  statistics pipeline (``hlip_jax.analysis``), which imports them.
+  statistics pipeline (``hlip_jax.analysis``), which imports them;
+* no test module changes ``sys.path``: shared test code lives in ``tests/support`` and a
+  benchmark script is loaded with ``support.load_benchmark``.
 
 Violations in modules that are still to be reworked are listed in the allow-lists below,
 each with its issue, so that a new one fails the test and a fixed one must leave the list.
@@ -23,6 +25,7 @@ from pathlib import Path
 
 PACKAGE = "hlip_jax"
 ROOT = Path(__file__).resolve().parents[1] / PACKAGE
+TESTS = Path(__file__).resolve().parent
 
 ALLOWED_PRIVATE: set = set()
 
@@ -189,3 +192,40 @@ def test_sets_and_mpc_do_not_import_analysis():
     edges, _ = _scan(_modules())
     for core in ("hlip_jax.sets", "hlip_jax.invariant", "hlip_jax.robust", "hlip_jax.mpc"):
         assert not {m for m in edges[core] if _room(m) == "hlip_jax.analysis"}, core
+
+
+def _sys_path_changes(tree: ast.Module) -> list[int]:
+    """Lines of ``sys.path.<insert|append|extend|...>(...)``, ``sys.path = ...``,
+    ``sys.path += ...`` and ``sys.path[...] = ...`` in a module."""
+    def is_sys_path(node):
+        return (isinstance(node, ast.Attribute) and node.attr == "path"
+                and isinstance(node.value, ast.Name) and node.value.id == "sys")
+
+    lines = []
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                and is_sys_path(node.func.value)):
+            lines.append(node.lineno)
+        elif isinstance(node, (ast.Assign, ast.AugAssign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            for t in targets:
+                if is_sys_path(t) or (isinstance(t, ast.Subscript) and is_sys_path(t.value)):
+                    lines.append(node.lineno)
+    return sorted(lines)
+
+
+def test_sys_path_scan_sees_an_insert():
+    tree = ast.parse("import sys\nsys.path.insert(0, 'benchmarks')\nsys.path += ['x']\n")
+    assert _sys_path_changes(tree) == [2, 3]
+
+
+def test_no_test_module_changes_sys_path():
+    """Tests share code through ``tests/support`` (``from support import ...``) and load a
+    benchmark script with ``support.load_benchmark(name)``; none puts a folder on
+    ``sys.path`` itself."""
+    found = [f"{path.relative_to(TESTS.parent)}:{line}"
+             for path in sorted(TESTS.rglob("*.py"))
+             for line in _sys_path_changes(ast.parse(path.read_text(encoding="utf-8"), str(path)))]
+    assert found == [], ("a test module changes sys.path (" + ", ".join(found) + "): put shared "
+                         "code in tests/support and import it as `from support import ...`; "
+                         "load a benchmark script with `support.load_benchmark(name)`")

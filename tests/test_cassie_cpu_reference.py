@@ -29,8 +29,6 @@ Tolerances:
 
 import jax
 
-import sys
-from pathlib import Path
 
 import jax.numpy as jnp
 import mujoco
@@ -43,8 +41,7 @@ from mujoco import mjx
 from hlip_jax import qp
 from hlip_jax.plants.cassie import clfqp, control, dynamics, outputs
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-import cassie_cpu_reference as cpu_reference  # noqa: E402  (benchmark code, outside the package)
+from support import cassie_cpu_reference as cpu_reference
 
 #: (hinge offsets [rad], velocity noise [m/s, rad/s], seed) of the compared states
 STATES = {"calm": (0.0, 0.05, 1), "perturbed": (0.01, 0.2, 3)}

@@ -2,17 +2,14 @@
 constraint, the reference set, the committed round-14 sweep file and the ranking."""
 
 import csv
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from hlip_jax.plants.cassie import gaits
+from support import ROOT, load_benchmark
 
-import cassie_gait_search as gs  # noqa: E402
-from hlip_jax.plants.cassie import gaits  # noqa: E402
+gs = load_benchmark("cassie_gait_search")
 
 #: a drawn value is rounded to 4 decimals, so it may lie up to half a unit of the last digit
 #: outside its range

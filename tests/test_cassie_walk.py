@@ -3,9 +3,7 @@ differences), touchdown detection, the config → params path, the gait presets,
 walk of the shipped underactuated controller on MJX (slow)."""
 
 import math
-import sys
 import types
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -18,8 +16,7 @@ from hlip_jax.config import (CassieConfig, DisturbanceConfig, HLIPConfig, ImplCo
 from hlip_jax.plants.base import StepCommand
 from hlip_jax.plants.cassie import gaits, model, outputs, plant, tick
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-import cassie_orbits as orbits  # noqa: E402  (the orbit driver is benchmark code, outside the package)
+from support import cassie_orbits as orbits
 
 Z0, TS, TD = 0.85, 0.25, 0.1
 

@@ -2,13 +2,12 @@
 and the per-set table on two small runs."""
 
 import math
-import sys
-from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import compare_runs  # noqa: E402
+from support import load_benchmark
+
+compare_runs = load_benchmark("compare_runs")
 
 
 @pytest.mark.parametrize("table, p", [

@@ -2,14 +2,13 @@
 numpy's dense solve on well-conditioned matrices (what the benchmark compares must be the same
 answer)."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+from support import load_benchmark
 
-from eigh_bench import N_RHS, N_ROWS, solvers  # noqa: E402
+eigh_bench = load_benchmark("eigh_bench")
+N_RHS, N_ROWS, solvers = eigh_bench.N_RHS, eigh_bench.N_ROWS, eigh_bench.solvers
 
 
 def test_both_solves_match_a_dense_solve(float64):

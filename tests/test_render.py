@@ -293,7 +293,6 @@ def test_run_render_draws_videos_and_strips_for_the_report(tmp_path, monkeypatch
 
 # two robots in one chunk, 1.2 s each, the first pushed: tests/test_tick_report.py's chunk,
 # whose replay that test finds bit for bit
-sys.path.insert(0, str(Path(__file__).parent))
 from test_tick_report import CHUNK  # noqa: E402
 
 

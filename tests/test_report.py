@@ -8,13 +8,11 @@ from __future__ import annotations
 
 import base64
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
 from test_store import TINY, fake_simulate  # noqa: E402
 
 from hlip_jax import report, runner, store, sweep  # noqa: E402

@@ -1,15 +1,14 @@
-"""benchmarks/scatter_census.py counts a function's equations (its scatters by default) by
-primitive and line; benchmarks/eqn_census.py groups them by source file."""
+"""support.jaxpr_census (used by benchmarks/scatter_census.py and benchmarks/eqn_census.py)
+counts a function's equations (its scatters by default) by primitive and line, and groups
+them by source file."""
 
 import inspect
-import sys
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import scatter_census  # noqa: E402
+from support import jaxpr_census
 
 
 def _f(x, i):
@@ -19,7 +18,7 @@ def _f(x, i):
 
 
 def test_census_counts_each_scatter_once_with_its_line():
-    counts = scatter_census.census(_f, jnp.ones(5), jnp.array([0, 1, 1, 2, 2]), depth=1)
+    counts = jaxpr_census.census(_f, jnp.ones(5), jnp.array([0, 1, 1, 2, 2]), depth=1)
     lines, start = inspect.getsourcelines(_f)
     here = Path(__file__).name
     by_line = {(p, w[0].rsplit(":", 1)[1]): n for (p, w), n in counts.items()
@@ -35,11 +34,10 @@ def _g(x):
 
 
 def test_an_empty_prefix_counts_every_equation_and_eqn_census_groups_them_by_file():
-    import eqn_census
-    counts = scatter_census.census(_g, jnp.ones(3), depth=1, prefix="")
+    counts = jaxpr_census.census(_g, jnp.ones(3), depth=1, prefix="")
     # a fixed trip count makes the loop a scan; its counter's increment is JAX's own (no
     # frame outside JAX), sin, mul, the scan and the body's add are this file's
     assert sorted(p for p, _ in counts.elements()) == ["add", "add", "mul", "scan", "sin"]
-    files = eqn_census.by_file(counts)
+    files = jaxpr_census.by_file(counts)
     mine = [n for f, n in files.items() if f.endswith(Path(__file__).name)]  # path from cwd
     assert files["(jax)"] == 1 and mine == [4] and len(files) == 2

@@ -1,14 +1,13 @@
 """benchmarks/cassie_stance_foot.py's per-step measure of the stance foot's motion in SSP,
 on synthetic foot tracks with known motion (exact: plain array arithmetic, 1e-12)."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
-from cassie_stance_foot import stance_motion  # noqa: E402
+from support import load_benchmark
+
+stance_motion = load_benchmark("cassie_stance_foot").stance_motion
 
 
 def test_stance_foot_motion_on_known_tracks():

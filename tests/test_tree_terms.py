@@ -7,8 +7,6 @@ orders, so they agree to rounding; 1e-10 of each quantity's largest entry leaves
 of magnitude above what was observed (≤ 3e-14 relative) and fails on any wrong term."""
 
 import dataclasses
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -19,8 +17,7 @@ from mujoco import mjx
 
 from hlip_jax.plants.cassie import model, tree_terms
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import scatter_census  # noqa: E402
+from support import jaxpr_census
 
 REL = 1e-10
 
@@ -149,7 +146,7 @@ def test_no_scatter_in_the_dense_terms(float64):
     # sort every scatter whose indices may repeat); MJX's stages have dozens
     c = model.load()
     q, v = jnp.asarray(c.stand_qpos), jnp.zeros(c.mj_model.nv)
-    scatters = lambda f: sum(scatter_census.census(f, q, v).values())
+    scatters = lambda f: sum(jaxpr_census.census(f, q, v).values())
     assert scatters(lambda q, v: tree_terms.smooth(c.tree, c.mjx_model, q, v)) == 0
     d = mjx.put_data(c.mj_model, mujoco.MjData(c.mj_model))
     assert scatters(lambda q, v: model.smooth(c, d.replace(qpos=q, qvel=v))) > 10

@@ -2,15 +2,14 @@
 hull W and its gauge against the closed forms of a box (conv of a box's corners)."""
 
 import itertools
-import sys
-from pathlib import Path
 
 import numpy as np
 
 from hlip_jax import runner, store, sweep
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import tube_runs  # noqa: E402
+from support import load_benchmark
+
+tube_runs = load_benchmark("tube_runs")
 
 SWEEP = """
 name = "tube_runs"

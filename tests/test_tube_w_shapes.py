@@ -1,16 +1,14 @@
 """benchmarks/tube_w_shapes.py's box and hull supports of the mRPI set, against closed forms and
 against hlip_jax.robust's box tables."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
-from tube_w_shapes import shape_bounds  # noqa: E402
+from hlip_jax import robust
+from support import load_benchmark
 
-from hlip_jax import robust  # noqa: E402
+shape_bounds = load_benchmark("tube_w_shapes").shape_bounds
 
 
 def test_scalar_geometric_series():

@@ -1,8 +1,8 @@
 """Orbit walking without the MPC: the H-LIP nominal follows P1 (sagittal) / P2 (lateral)
 orbit steps in a turning heading frame and the robots step by the stepping law
 (:func:`walk_orbits`).  A driver for tests and benchmarks of the Cassie plant on its own
-(benchmark code, outside the package: ``import cassie_orbits`` with ``benchmarks/`` on the
-path)."""
+(outside the package: tests import ``support.cassie_orbits``, benchmark scripts
+``tests.support.cassie_orbits`` with the repository root on their path)."""
 
 from __future__ import annotations
 
