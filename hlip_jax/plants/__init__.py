@@ -11,11 +11,13 @@ records import their modules on first use, so that naming or validating a plant 
     state = plant.init(params, x0, u0, stance0, key, heading0)
     x_r0 = plant.measure(params, state, stance0)             # the robot's S2S state at t = 0
     state, result = plant.step(params, state, cmd)           # + plant.settings(cfg) if any
+
+A plant validates the scenario configs it is given in its own ``check(cfg)``, found through
+:data:`CHECKS` (:func:`check`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import importlib
 import importlib.util
 from typing import Callable, NamedTuple, Optional
@@ -54,6 +56,11 @@ REGISTRY = {"hlip": "hlip_jax.plants.hlip_plant", "cassie": "hlip_jax.plants.cas
 
 #: names a sweep file may give (the config validator's choices)
 NAMES = tuple(REGISTRY)
+
+#: each registered plant's validation of a scenario config: name -> module that defines
+#: ``check(cfg)`` (None, or a one-line message naming a field the plant cannot take), imported
+#: on first :func:`check`; a light module (the Cassie plant's is not its MJX plant module)
+CHECKS = {"hlip": "hlip_jax.plants.hlip_plant", "cassie": "hlip_jax.plants.cassie.checks"}
 
 
 #: the scenario tables a plant owns: table -> (module, its config class); the scenario config
@@ -98,60 +105,15 @@ def load(name: str) -> Plant:
     return importlib.import_module(REGISTRY[name]).PLANT
 
 
-def _changed(table, names=None) -> Optional[tuple]:
-    """(field, value, default) of the first field of the config table ``table`` (of ``names``,
-    default all) whose value is not its class's default; None when all are (no import of the
-    config layer: the defaults come from the table's own class)."""
-    default = type(table)()
-    for name in names if names is not None else (f.name for f in dataclasses.fields(table)):
-        if getattr(table, name) != getattr(default, name):
-            return name, getattr(table, name), getattr(default, name)
-    return None
-
-
 def check(cfg) -> Optional[str]:
-    """The plant's own validation of a scenario config: None, or a one-line message naming a
-    field the plant cannot take.  Light: no plant module is imported."""
-    if cfg.plant == "hlip":
-        if (ch := _changed(cfg.realism)) is not None:
-            return (f"realism.{ch[0]}: {ch[1]!r} models the Cassie robot; "
-                    f"allowed with plant = 'hlip': {ch[2]!r}")
-        if (ch := _changed(cfg.impl)) is not None:
-            return (f"impl.{ch[0]}: {ch[1]!r} chooses how the Cassie robot is computed; "
-                    f"allowed with plant = 'hlip': {ch[2]!r}")
-    if cfg.plant == "cassie":
-        if (ch := _changed(cfg.disturbance, HLIP_ONLY_DISTURBANCES)) is not None:
-            return (f"disturbance.{ch[0]}: {_show(ch[1])} acts on the H-LIP plant only; "
-                    f"allowed with plant = 'cassie': {_show(ch[2])} (Cassie takes "
-                    "disturbance.noise_v, disturbance.step_error and disturbance.pushes)")
-        for f in ("step_height", "rough_height"):
-            if cfg.impl.physics == "warp" and getattr(cfg.realism, f) != 0.0:
-                return (f"realism.{f}: {getattr(cfg.realism, f):g} needs the MJX-JAX physics "
-                        "(the Warp physics has no terrain); allowed with impl.physics = "
-                        "'warp': 0")
-        if cfg.impl.qp_kernel == "fused" and cfg.impl.qp_linsys != "inverse":
-            return (f"impl.qp_kernel: 'fused' with impl.qp_linsys = {cfg.impl.qp_linsys!r}; "
-                    "allowed: 'xla', or 'fused' with qp_linsys = 'inverse' (the kernel "
-                    "multiplies by the inverse)")
-        if cfg.realism.step_height != 0.0 and cfg.realism.rough_height != 0.0:
-            return ("realism.rough_height: a scenario has a step (realism.step_height) or rough "
-                    "ground, not both; allowed with step_height != 0: 0")
-        if cfg.impl.physics == "warp" and not warp_installed():
-            return ("impl.physics: 'warp' needs the warp-lang package (pip install "
-                    "'hlip_jax[warp]'); allowed without it: 'jax'")
-    return None
+    """The plant's own validation of a scenario config, the ``check(cfg)`` of its
+    :data:`CHECKS` module: None, or a one-line message naming a field the plant cannot take.
+    Light: the plant's MJX modules are not imported."""
+    module = CHECKS.get(cfg.plant)
+    return None if module is None else importlib.import_module(module).check(cfg)
 
 
 def warp_installed() -> bool:
     """Whether the warp-lang package is installed (found, not imported: validation stays light)."""
     return importlib.util.find_spec("warp") is not None
 
-
-#: disturbance fields the Cassie plant has no counterpart for (its model is the model; its legs
-#: always limit its steps)
-HLIP_ONLY_DISTURBANCES = ("noise_p", "z0", "t_ssp", "t_dsp", "mass", "step_limits")
-
-
-def _show(v) -> str:
-    """A config value as a sweep file writes it (true/false for booleans)."""
-    return str(v).lower() if isinstance(v, bool) else f"{v:g}"

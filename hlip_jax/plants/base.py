@@ -23,7 +23,8 @@ path's heading at t = 0 [rad], the way a robot with an orientation starts facing
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -90,3 +91,19 @@ def clip_step(u, heading, swing, length_max, width_min, width_max):
     along = jnp.clip(ch * u[0] + sh * u[1], -length_max, length_max)
     across = sgn * jnp.clip(sgn * (-sh * u[0] + ch * u[1]), width_min, width_max)
     return jnp.stack([ch * along - sh * across, sh * along + ch * across])
+
+
+def changed_field(table, names=None) -> Optional[tuple]:
+    """(field, value, default) of the first field of the config table ``table`` (of ``names``,
+    default all) whose value is not its class's default; None when all are (no import of the
+    config layer: the defaults come from the table's own class).  For a plant's ``check``."""
+    default = type(table)()
+    for name in names if names is not None else (f.name for f in dataclasses.fields(table)):
+        if getattr(table, name) != getattr(default, name):
+            return name, getattr(table, name), getattr(default, name)
+    return None
+
+
+def show_setting(v) -> str:
+    """A config value as a sweep file writes it (true/false for booleans, numbers as %g)."""
+    return str(v).lower() if isinstance(v, bool) else f"{v:g}"

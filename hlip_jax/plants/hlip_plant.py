@@ -26,14 +26,14 @@ state stops being finite.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from hlip_jax.plants import Plant
-from hlip_jax.plants.base import StepCommand, StepResult, clip_step, push_table
+from hlip_jax.plants.base import StepCommand, StepResult, changed_field, clip_step, push_table
 
 
 class Params(NamedTuple):
@@ -157,6 +157,19 @@ def step_span(cfg) -> float:
     """A step of the planner's H-LIP lasts T_SSP + T_DSP [s] (the plant's own timing, when it
     differs, needs no static size)."""
     return cfg.hlip.t_ssp + cfg.hlip.t_dsp
+
+
+def check(cfg) -> Optional[str]:
+    """The H-LIP plant's validation of a scenario config (:func:`hlip_jax.plants.check`): None,
+    or a one-line message naming a field it cannot take.  The ``realism`` and ``impl`` tables
+    describe the Cassie robot and how it is computed: they must keep their defaults."""
+    if (ch := changed_field(cfg.realism)) is not None:
+        return (f"realism.{ch[0]}: {ch[1]!r} models the Cassie robot; "
+                f"allowed with plant = 'hlip': {ch[2]!r}")
+    if (ch := changed_field(cfg.impl)) is not None:
+        return (f"impl.{ch[0]}: {ch[1]!r} chooses how the Cassie robot is computed; "
+                f"allowed with plant = 'hlip': {ch[2]!r}")
+    return None
 
 
 PLANT = Plant(name="hlip", measure=measure,
