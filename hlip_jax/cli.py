@@ -89,7 +89,7 @@ def shipped_dir() -> Path:
 def resolve_sweep(arg: str) -> Path:
     """A sweep path, or a shipped sweep's name (``paper`` → ``sweeps/paper.toml``)."""
     p = Path(arg)
-    if p.exists() or os.sep in arg:
+    if os.sep in arg or (p.exists() and not p.is_dir()):
         return p
     for cand in (shipped_dir() / arg, shipped_dir() / f"{arg}.toml"):
         if cand.is_file():
@@ -153,6 +153,10 @@ def _use_cache(args) -> None:
         if not args.compile_cache.strip():
             raise UserError("--compile-cache: an empty path; allowed: a writable directory "
                             "(or --no-compile-cache)")
+        link = _broken_link(Path(args.compile_cache))
+        if link:
+            raise UserError(f"--compile-cache {args.compile_cache}: {link}; allowed: a writable "
+                            "directory")
         try:
             compile_cache.enable(Path(args.compile_cache))
         except compile_cache.CacheDirError as err:
@@ -163,10 +167,28 @@ def _use_cache(args) -> None:
         trace_cache.disable()
         print(f"{PROG}: note: compilation cache off: {why}", file=sys.stderr)
         return
+    link = _broken_link(compile_cache.default_dir())
+    if link:
+        trace_cache.disable()
+        print(f"{PROG}: note: compilation cache off: {compile_cache.default_dir()}: {link}",
+              file=sys.stderr)
+        return
     try:
         compile_cache.enable(compile_cache.default_dir())
     except compile_cache.CacheDirError as err:
         print(f"{PROG}: note: compilation cache off: {err}", file=sys.stderr)
+
+
+def _broken_link(path: Path) -> str | None:
+    """Why ``path`` is a symbolic link that leads to no directory (a loop, or dangling), or
+    None (creating it would only say "File exists")."""
+    if not path.is_symlink() or path.exists():
+        return None
+    try:
+        os.stat(path)
+    except OSError as err:
+        return f"a symbolic link that leads nowhere ({err.strerror})"
+    return None
 
 
 def _default_cache_problem() -> str | None:
@@ -560,6 +582,43 @@ def _train_on(text: str | None):
     return field.strip(), [value(v.strip()) for v in vals.split(",")]
 
 
+def _same_value(a, b) -> bool:
+    """A --train-on value equals a stored swept value (numbers by value: 0.010 is 0.01)."""
+    num = (int, float)
+    if isinstance(a, num) and isinstance(b, num) and not isinstance(a, bool) \
+            and not isinstance(b, bool):
+        return float(a) == float(b)
+    return a == b
+
+
+def _check_train_values(train_on, configs: list) -> None:
+    """UserError naming a --train-on value that no scenario of the run takes (a typo would
+    otherwise train on the other values without a word)."""
+    if train_on is None:
+        return
+    field, values = train_on
+    taken = list(dict.fromkeys(str(c["swept"][field]) for c in configs if field in c["swept"]))
+    stored = [c["swept"][field] for c in configs if field in c["swept"]]
+    if not stored:
+        return                   # not a swept field: coverage_rows names it
+    for v in values:
+        if not any(_same_value(v, t) for t in stored):
+            shown = ", ".join(taken[:8]) + (", ..." if len(taken) > 8 else "")
+            raise UserError(f"--train-on: {field}={v!r} is none of the run's values of {field!r}; "
+                            f"allowed: {shown}")
+
+
+def _note_unfinished(d: Path, man: dict, what: str) -> None:
+    """A note when some of the run's chunks are not stored (an unfinished run)."""
+    from hlip_jax import store
+    ranges = store.chunk_ranges(man["n_scenarios"], man["batch"])
+    stored = sum(b - a for i, (a, b) in enumerate(ranges) if store.chunk_path(d, i).is_file())
+    if stored < man["n_scenarios"]:
+        print(f"{PROG}: note: {stored} of the {man['n_scenarios']} scenarios are stored (an "
+              f"unfinished run; finish it with `{PROG} run SWEEP --out {d} --resume`); {what}",
+              file=sys.stderr)
+
+
 def _coverage_settings(d: Path, args):
     """The directory's analysis settings with the command line's --q, --split, --warmup."""
     from hlip_jax import store
@@ -583,6 +642,9 @@ def cmd_coverage(args) -> int:
     store.check_chunks(d)
     from hlip_jax import runner
     train_on = _train_on(args.train_on)
+    man = store.read_manifest(d)
+    _check_train_values(train_on, man["configs"])
+    _note_unfinished(d, man, "coverage.csv holds the stored ones")
     with runner.on_host():
         rows = store.coverage_rows(d, settings, train_on)
     if train_on is not None and all(r["note"] in ("no test run", "no training run") for r in rows):
@@ -634,8 +696,10 @@ def _matching(names: list[str], regex: str, option: str) -> list[int]:
     ``option`` when the expression is malformed or, given names, matches none of them."""
     try:
         pattern = re.compile(regex)
-    except re.error as err:
-        raise UserError(f"{option}: {regex!r} is not a regular expression ({err})") from None
+    except (re.error, OverflowError, RecursionError) as err:    # a{4294967296}; 2,000 '('
+        why = err if not isinstance(err, RecursionError) else "nested too deeply"
+        shown = repr(regex) if len(regex) <= 60 else f"{regex[:60]!r}... ({len(regex)} characters)"
+        raise UserError(f"{option}: {shown} is not a regular expression ({why})") from None
     chosen = [i for i, n in enumerate(names) if pattern.search(n)]
     if names and not chosen:
         shown = ", ".join(names[:5]) + (", …" if len(names) > 5 else "")
@@ -1142,7 +1206,8 @@ def _fail(msg: str, code: int) -> int:
 def _os_error(args, err: OSError) -> int:
     """A file-system error: during ``run`` the run is incomplete (exit 1: finished chunks are
     kept, resume once the cause is fixed); elsewhere exit 2."""
-    where = f"{err.filename}: " if err.filename else ""
+    folder = getattr(args, "dir", None) or getattr(args, "out", None)
+    where = f"{err.filename}: " if err.filename else f"{folder}: " if folder else ""
     what = f"{where}{err.strerror or err}"
     if args.cmd == "run":
         return _fail(f"cannot write the results: {what}; finished chunks are kept: fix this and "

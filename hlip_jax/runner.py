@@ -156,9 +156,11 @@ def resolve_impl(sw) -> "impl.Resolved":
 
 
 def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, chash: str,
-                    batch: int, with_coverage: bool) -> dict | None:
+                    size: tuple[int, int], with_coverage: bool) -> dict | None:
     """Refuse a run into a directory holding another one (or resuming a different config);
-    with ``overwrite``, delete the old run.  Returns the manifest to continue, or None."""
+    with ``overwrite``, delete the old run.  ``size``: (chunk size, scenario count).  Returns
+    the manifest to continue, or None."""
+    batch, n = size
     if old is None and resume:
         raise store.StoreError(f"--resume: {out} holds no run to resume (no {store.MANIFEST}); "
                                "drop --resume to start one")
@@ -183,6 +185,9 @@ def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, 
                if old.get("with_coverage", True) != with_coverage
                else "the precision differs (JAX_ENABLE_X64)"
                if old.get("x64", _x64()) != _x64()
+               else f"the scenario count differs (manifest {old.get('n_scenarios')}, now {n}: "
+               "give the --limit of the interrupted run, or none)"
+               if old.get("n_scenarios") != n
                else "the expanded sweep config differs")
         raise store.StoreError(f"refusing to resume {out}: {why}; config hash {chash[:12]} vs "
                          f"{str(old.get('config_hash'))[:12]} in {store.MANIFEST}")
@@ -249,7 +254,7 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
     extra = {"batch": batch, "x64": _x64()} if with_coverage else \
         {"batch": batch, "x64": _x64(), "coverage": False}
     chash = sweep_mod.config_hash(configs, extra)
-    old = _check_existing(out, old, resume, overwrite, chash, batch, with_coverage)
+    old = _check_existing(out, old, resume, overwrite, chash, (batch, n), with_coverage)
     ranges = store.chunk_ranges(n, batch)
     man = dict(old) if old else _new_manifest(sw, configs, batch, len(ranges), chash,
                                               with_coverage)

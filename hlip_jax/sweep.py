@@ -53,13 +53,14 @@ what is allowed.  Validation is complete here, so ``hlip-sweep show`` rejects wh
 would, before any compile:
 
 * Names: the sweep name (a directory name) and path names (figure file names) are 1–100 and
-  1–64 characters of letters, digits, spaces and ``. _ - + = , @ ( )``, never starting with
+  1–64 characters of ASCII letters, digits, spaces and ``. _ - + = , @ ( )``, never starting with
   ``.`` (so never ``.`` or ``..``); two path names may not give the same file slug
   (:func:`file_slug`).
 * Static settings (:data:`STATIC_FIELDS`: the plant, the MPC horizon and the QP settings) take
   one value across the sweep: not swept over several values, not overridden for one path.
 * Cross-field checks per scenario: step limits, durations of at least two steps, Cassie's
-  disturbances, a push starting before the run ends, no obstacle covering the path's start.
+  disturbances, a push starting before the run ends, no obstacle covering the path's start, a
+  path's x0, y0 and waypoints within :data:`MAX_PATH_OFFSET` (1,000 m) of the origin.
 * Sizes: fewer than :data:`MAX_SCENARIOS` scenarios, counted from the axes without building
   them; tables and arrays at most :data:`MAX_DEPTH` deep; no byte-order mark.  A grid larger
   than :data:`EAGER_SCENARIOS` is validated on a covering subset (:func:`_validation_points`:
@@ -124,7 +125,7 @@ MAX_DEPTH = 32
 MAX_NAME_LEN, MAX_PATH_NAME_LEN = 100, 64
 #: characters a sweep or path name may hold (it becomes a file or directory name)
 _NAME_RE = re.compile(r"[A-Za-z0-9 _.+=,@()-]+")
-_NAME_ALLOWED = "letters, digits, spaces and . _ - + = , @ ( ) (no slashes)"
+_NAME_ALLOWED = "ASCII letters, digits, spaces and . _ - + = , @ ( ) (no slashes)"
 #: settings that are array shapes or compiled solver settings (:func:`hlip_jax.arrays.build`
 #: requires them equal across a batch): one value per sweep
 STATIC_FIELDS = C.STATIC_FIELDS
@@ -356,9 +357,29 @@ def _cross_checks(cfg: C.ScenarioConfig, where: str) -> None:
                              f"never acts; allowed: 0 <= time < {cfg.duration:g}")
     if cfg.obstacles:
         _check_start_clear(cfg, where)
+    _check_path_origin(cfg, where)
     _check_s2s(cfg, where)
     if m.robust:
         _check_tube(cfg, where)
+
+
+#: how far from the world origin a path may start or place a waypoint [m]: the closed loop
+#: computes in absolute coordinates, and the same path moved farther out tracks measurably
+#: differently (at 2,000 m a cardioid's max_track_err is 0.196 m instead of 0.129 m)
+MAX_PATH_OFFSET = 1000.0
+
+
+def _check_path_origin(cfg: C.ScenarioConfig, where: str) -> None:
+    """The path's x0, y0 and waypoints within :data:`MAX_PATH_OFFSET` of the origin."""
+    params = cfg.path.params
+    coords = [(k, params[k]) for k in ("x0", "y0") if k in params]
+    coords += [(f"waypoints.{i}", max(abs(a) for a in pt))
+               for i, pt in enumerate(params.get("waypoints") or ())]
+    for key, v in coords:
+        if abs(v) > MAX_PATH_OFFSET:
+            raise SweepError(f"{where}: path.{key}: {v:g} m from the origin; allowed: within "
+                             f"±{MAX_PATH_OFFSET:g} m (results computed farther out differ from "
+                             "the same path's nearer the origin: rounding)")
 
 
 def _check_s2s(cfg: C.ScenarioConfig, where: str) -> None:
@@ -796,7 +817,7 @@ def _check_name(value, where: str, max_len: int, origin: str = "") -> str:
     if not value.strip():
         why = "is empty"
     elif bad:
-        why = f"holds characters not allowed in a file name ({bad!r})"
+        why = f"holds characters not allowed in a file name ({ascii(bad)})"
     elif len(value) > max_len:
         why = f"is {len(value)} characters long"
     elif value.startswith("."):
@@ -1207,6 +1228,9 @@ def _resolve_extends(p: Path, source: str, chain: tuple) -> tuple[dict, str]:
     if len(chain) + 1 >= MAX_EXTENDS:
         raise SweepError(f"{source}: extends: more than {MAX_EXTENDS} files in the chain")
     where = f"{source}: extends {_fmt(parent)}"
+    if not os.path.exists(q):      # (a shipped sweep's name is not looked up here)
+        raise SweepError(f"{where}: sweep file not found (looked for {_short(str(q), 200)}: "
+                         "a path relative to this file)")
     base_doc, base_text = _resolve_extends(q, where, chain + (p.resolve(),))
     for k in base_doc:          # a file that is not a sweep is named, not the one extending it
         if k not in TOP_KEYS:

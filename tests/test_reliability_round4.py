@@ -620,3 +620,100 @@ def test_s2s_of_an_unfinished_run_reads_each_scenario_by_its_index(done, capsys)
     code, out, err = cli(capsys, "s2s", done)
     assert "Traceback" not in err and "1 of the 4 chosen scenarios are not stored yet" in err
     assert code == 0 and out.startswith("3 scenarios"), err
+
+
+# ---- seventh round (docs/reliability.md) --------------------------------------------------
+
+@pytest.mark.parametrize("regex, why", [("a{4294967296}", "repetition number is too large"),
+                                        ("(" * 2000 + ")" * 2000, "nested too deeply")])
+def test_a_regex_python_cannot_compile_is_named(done, capsys, regex, why):
+    # #24 (traceback: OverflowError) and #29 (a recursion message naming no option)
+    line = _one_line_error(*cli(capsys, "s2s", done, "--scenarios", regex)[::2])
+    assert line.startswith("hlip-sweep: error: --scenarios: ") and why in line
+    assert len(line) < 300
+
+
+def test_a_path_far_from_the_origin_is_refused(tmp_path, capsys):
+    # #12: at x0 = y0 = 10,000 m (the parameter's range) the same path tracked differently
+    for params in ("x0 = 10000.0", "y0 = -1000.5", "waypoints = [[0, 0], [2000, 0]]"):
+        shape = "polyline" if "waypoints" in params else "circle"
+        p = tmp_path / "far.toml"
+        p.write_text(_ONE_PATH + f'[[paths]]\nshape = "{shape}"\n{params}\n')
+        line = _one_line_error(*cli(capsys, "show", p)[::2])
+        assert "m from the origin; allowed: within ±1000 m" in line
+    p.write_text(_ONE_PATH + '[[paths]]\nshape = "circle"\nx0 = 1000.0\ny0 = -1000.0\n')
+    assert cli(capsys, "show", p)[0] == 0
+
+
+@pytest.mark.parametrize("name", ["é" * 3, "e\u0301", "\u0661\u0662", "\ufb01le"])
+def test_a_non_ascii_name_is_refused_as_not_ascii(tmp_path, capsys, name):
+    # #14-17: the message allowed "letters, digits" and refused these letters and digits
+    p = tmp_path / "u.toml"
+    p.write_text(_ONE_PATH + f'[[paths]]\nshape = "line"\nname = "{name}"\n', encoding="utf-8")
+    line = _one_line_error(*cli(capsys, "show", p)[::2])
+    assert "allowed: 1-64 ASCII letters, digits" in line
+    assert "not allowed in a file name ('\\" in line      # the characters shown escaped
+
+
+def test_extends_of_a_missing_file_says_where_it_looked(tmp_path, capsys):
+    # #21: `extends = "paper"` (a shipped sweep's name) said only "sweep file not found"
+    p = tmp_path / "child.toml"
+    p.write_text('name = "child"\nextends = "paper"\n')
+    line = _one_line_error(*cli(capsys, "show", p)[::2])
+    assert f"looked for '{tmp_path / 'paper.toml'}': a path relative to this file" in line
+
+
+def test_a_folder_named_like_a_shipped_sweep_does_not_hide_it(tmp_path, capsys, monkeypatch):
+    # #47: a folder `paper_hlip` in the working directory: "sweep file not found (a directory)"
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "paper_hlip").mkdir()
+    code, out, err = cli(capsys, "show", "paper_hlip")
+    assert code == 0 and "sweeps/paper_hlip.toml" in out, err
+
+
+@pytest.mark.parametrize("value", ["path=line,nosuch", "path=line=circle", "mpc.alpha=0.5"])
+def test_a_train_on_value_no_scenario_takes_is_refused(done, capsys, value):
+    # #33, #35: a typo in a value trained on the others without a word
+    before = (done / "coverage.csv").read_bytes() if (done / "coverage.csv").exists() else None
+    line = _one_line_error(*cli(capsys, "coverage", done, "--train-on", value)[::2])
+    assert "is none of the run's values of" in line and "allowed: " in line
+    after = (done / "coverage.csv").read_bytes() if (done / "coverage.csv").exists() else None
+    assert before == after
+
+
+def test_coverage_of_an_unfinished_run_says_so(done, capsys):
+    # #38: coverage of 3 of 4 scenarios said nothing of the missing one
+    (done / "chunks" / "chunk_00001.npz").unlink()
+    code, _, err = cli(capsys, "coverage", done)
+    assert code == 0 and "note: 3 of the 4 scenarios are stored" in err, err
+
+
+def test_resume_with_another_limit_names_the_scenario_count(tmp_path, tiny_sweep, capsys,
+                                                             fake_loop):
+    # #51: "the expanded sweep config differs" did not say that --limit did
+    out = tmp_path / "o"
+    _run_ok(capsys, tiny_sweep, out, "--limit", "2")
+    line = _one_line_error(*cli(capsys, "run", tiny_sweep, "--out", out, "--resume",
+                                "--quiet")[::2])
+    assert "the scenario count differs (manifest 2, now 4" in line and "--limit" in line
+
+
+def test_a_compile_cache_link_in_a_loop_says_so(tiny_sweep, tmp_path, capsys):
+    # #54, #58: a link loop as the cache directory was reported as "File exists"
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")
+    line = _one_line_error(*cli(capsys, "run", tiny_sweep, "--out", tmp_path / "o",
+                                "--compile-cache", tmp_path / "a")[::2])
+    assert "a symbolic link that leads nowhere" in line and not (tmp_path / "o").exists()
+
+
+def test_a_full_disk_names_the_results_directory(done, capsys, monkeypatch):
+    # #65, #66: "No space left on device" named no file or directory
+    import errno
+    from hlip_jax import report
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(report, "write_report", full)
+    line = _one_line_error(*cli(capsys, "report", done)[::2])
+    assert line == f"hlip-sweep: error: {done}: No space left on device"
