@@ -233,10 +233,10 @@ def spread_of(devices: Sequence) -> str:
     (:func:`place` and :func:`run`: per-device loops in one ``shard_map`` program, one compile
     for all), for CPU devices; ``"dispatch"`` — the batch cut into one block per device, each
     device running the one-device program on its block (:func:`run_blocks`), for GPUs: the
-    split programs crashed XLA's GPU compile (two H200s, jax 0.11.2), the program XLA
+    split programs crashed XLA's GPU compile (two H200s, jax 0.11.2), and the program XLA
     partitions tests "any robot still stepping" across the devices every tick (no faster on
-    two GPUs than on one: docs/benchmarks/sweeps.md), and the persistent cache serves the
-    first GPU's executable to the others."""
+    two GPUs than on one: docs/benchmarks/sweeps.md).  Each GPU compiles its own executable,
+    concurrently (:func:`run_each`)."""
     return "program" if list(devices)[0].platform == "cpu" else "dispatch"
 
 

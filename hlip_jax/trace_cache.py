@@ -79,13 +79,13 @@ class Program(NamedTuple):
 
     def run(self, leaves):
         """The outputs' flat leaves.  The executable compiled for the arguments' placement
-        where it accepts them (:data:`PLACEMENT_ERRORS` where their types differ from the
-        ones it was compiled for), else the jitted call, which compiles for them."""
+        where it accepts them (it raises TypeError where their types differ from the ones it
+        was compiled for), else the jitted call, which compiles for them."""
         exe = self.compiled.get(placement(leaves))
         if exe is not None:
             try:
                 return exe(*leaves)
-            except PLACEMENT_ERRORS:
+            except TypeError:
                 pass
         return self.jitted(*leaves)
 
@@ -101,11 +101,6 @@ def placement(args) -> Optional[tuple]:
         return None
     return tuple(sorted(d.id for d in leaf.sharding.device_set))
 
-
-#: what an executable compiled ahead raises for arguments it was not compiled for: other
-#: types or a committed array where the lowering had none (TypeError), arrays on another device
-#: (ValueError; :func:`hlip_jax.execution.run_each` gives one program's calls to several devices)
-PLACEMENT_ERRORS = (TypeError, ValueError)
 
 _loaded: dict[str, Program] = {}      # key -> program, for the rest of the process
 _ahead: dict[tuple, Callable] = {}    # call signature -> executable compiled ahead by jit
@@ -361,14 +356,14 @@ def _signature(fn: Callable, static, args) -> tuple:
 
 def _call_ahead(fn: Callable, static, args):
     """``fn(*args, static=static)`` by the executable :func:`compile_together` made for these
-    argument types, where it accepts the arguments as placed (:data:`PLACEMENT_ERRORS` where
-    their types or placement differ: a committed array where the lowering had none, or
-    another device), else by jit."""
+    argument types and placement (:func:`placement`), where it accepts the arguments (it
+    raises TypeError where their types differ: a committed array where the lowering had
+    none), else by jit."""
     compiled = _ahead.get(_signature(fn, static, args))
     if compiled is not None:
         try:
             return compiled(*args)
-        except PLACEMENT_ERRORS:
+        except TypeError:
             pass
     return fn(*args, static=static)
 
