@@ -1,5 +1,5 @@
 """Wall time of the per-scenario analysis that follows every chunk's simulation
-(:func:`hlip_jax.metrics.scenario_metrics`: tracking metrics and the invariant-set coverage
+(:func:`hlip_jax.analysis.metrics.scenario_metrics`: tracking metrics and the invariant-set coverage
 columns of summary.csv), on the stored chunks of a results directory.
 
     python benchmarks/analysis_bench.py RESULTS_DIR [--chunks 3]
@@ -18,7 +18,8 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hlip_jax import metrics, store  # noqa: E402
+from hlip_jax.analysis import metrics
+from hlip_jax.sweepio import store  # noqa: E402
 
 
 def push_windows(cfg: dict) -> list:

@@ -21,8 +21,9 @@ ROOT = sys.argv[1] if len(sys.argv) > 1 else "."
 OUT = sys.argv[2] if len(sys.argv) > 2 else "cassie_idle_ticks.npz"
 sys.path.insert(0, ROOT)
 
-from hlip_jax import arrays, execution, sweep  # noqa: E402
-from hlip_jax.config import PathConfig, PushConfig  # noqa: E402
+from hlip_jax.simulation import arrays, execution
+from hlip_jax.sweepio import sweep  # noqa: E402
+from hlip_jax.simulation.config import PathConfig, PushConfig  # noqa: E402
 
 
 def configs():

@@ -3,7 +3,7 @@
 The H-LIP state's p is measured from the stance ankle (the centre of pressure of a
 zero-torque foot).  If the passive foot rolled onto its toe or heel, or slid, during SSP, the
 pivot would move and p would be biased.  This re-simulates one scenario of a sweep with the
-controller's 1 kHz log (:func:`hlip_jax.execution.simulate_ticks`) and reports, per walking
+controller's 1 kHz log (:func:`hlip_jax.simulation.execution.simulate_ticks`) and reports, per walking
 step, the stance foot centre's displacement from the first to the last SSP tick (horizontal
 and vertical) and its largest horizontal excursion::
 
@@ -37,8 +37,9 @@ def stance_motion(feet: np.ndarray, phase: np.ndarray, valid: np.ndarray) -> np.
 
 
 def main(argv=None) -> None:
-    from hlip_jax import execution, sweep
-    from hlip_jax.cli import resolve_sweep
+    from hlip_jax.simulation import execution
+    from hlip_jax.sweepio import sweep
+    from hlip_jax.presentation.cli import resolve_sweep
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sweep", default="paper", help="sweep file or shipped sweep name")
     ap.add_argument("--scenario", type=int, default=0, help="index of the scenario")

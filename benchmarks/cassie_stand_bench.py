@@ -4,7 +4,7 @@ how many of a batch of randomly perturbed robots stand.
 Every robot starts at the ``stand`` keyframe with ±``--noise`` rad on every hinge, made
 consistent by ``model.stance_projection`` (chains closed, soles flat on the floor; ``--raw``
 skips it and starts from the open chains, as the first measurements did); one control
-tick is one condensed-dynamics CLF-QP (``hlip_jax.qp``, warm-started) and 2 MJX physics steps
+tick is one condensed-dynamics CLF-QP (``hlip_jax.core.qp``, warm-started) and 2 MJX physics steps
 (1 kHz control, 2 kHz physics).  The physics-only run steps the same batch with zero torque for
 the same number of ticks.  A robot is *upright* when, at the end, its pelvis is above 0.85 m and
 its roll and pitch are under 0.1 rad; the last column also asks its COM height to be within

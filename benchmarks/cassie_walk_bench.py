@@ -50,7 +50,7 @@ def main(argv=None):
     jax.config.update("jax_enable_x64", args.device == "cpu")
     import numpy as np
 
-    from hlip_jax import hlip
+    from hlip_jax.core import hlip
     from hlip_jax.plants.cassie import plant
 
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the root

@@ -1,5 +1,5 @@
 """Time the work after a simulation on a stored results directory: ``coverage.csv``'s rows and
-the report, each in one process and with the worker processes (:mod:`hlip_jax.workers`), in
+the report, each in one process and with the worker processes (:mod:`hlip_jax.runtime.workers`), in
 this one process run; the rows and report.md must come out the same.
 
 Usage::
@@ -22,7 +22,8 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hlip_jax import report, store  # noqa: E402
+from hlip_jax.presentation import report
+from hlip_jax.sweepio import store  # noqa: E402
 from hlip_jax.analysis import settings as analysis_settings  # noqa: E402
 
 

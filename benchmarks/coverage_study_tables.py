@@ -24,7 +24,7 @@ import pathlib
 import statistics
 from collections import defaultdict
 
-from hlip_jax import store
+from hlip_jax.sweepio import store
 from hlip_jax.analysis import stats
 
 
@@ -125,9 +125,9 @@ def headline(path: pathlib.Path, q: float = 0.9) -> list[str]:
 
 
 def figure(results: pathlib.Path, group: str, png: str) -> None:
-    """The report's figure (:func:`hlip_jax.report.fig_coverage_sets`) of one group of the seed
+    """The report's figure (:func:`hlip_jax.presentation.report.fig_coverage_sets`) of one group of the seed
     split: held-out errors against the box W's mRPI set and the run-calibrated box E_q."""
-    from hlip_jax import report
+    from hlip_jax.presentation import report
     from hlip_jax.analysis import coverage
     found = {label: (frame, sets_) for label, frame, sets_ in store.coverage_sets(results)}
     if group not in found:

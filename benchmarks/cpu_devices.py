@@ -3,7 +3,7 @@ device (``shard_map``), against one device.
 
 The closed loop's tick loop runs until no robot of the batch is still in its step.  Split
 over devices by XLA's partitioner, that stopping test becomes a cross-device reduction on
-every trip; :func:`hlip_jax.execution._per_device` gives each device its own loop instead.
+every trip; :func:`hlip_jax.simulation.execution._per_device` gives each device its own loop instead.
 This times a toy loop of the same shape (a batch of small matrix products, stopping when
 every row's counter has reached ``--trips``)::
 

@@ -1,7 +1,7 @@
 """How large the closed loop's compiled programs are, and which source files make them so.
 
 XLA's compile time grows with the program it is given.  This counts the equations of the
-start or segment program (:func:`hlip_jax.rollout.start_batch`, ``segment_batch``; the
+start or segment program (:func:`hlip_jax.simulation.rollout.start_batch`, ``segment_batch``; the
 bodies of loops and conditionals counted once each) of a sweep file's first ``--batch``
 scenarios, grouped by the source file of their innermost frame outside JAX ("(jax)": issued
 by JAX's own jitted helpers, such as ``jnp`` indexing)::
@@ -46,8 +46,8 @@ def main(argv=None) -> None:
         _no_physics()
     import jax
 
-    from hlip_jax import arrays, rollout
-    from hlip_jax.sweep import load_sweep
+    from hlip_jax.simulation import arrays, rollout
+    from hlip_jax.sweepio.sweep import load_sweep
     cfgs = list(load_sweep(args.sweep).scenarios)[:args.batch]
     batch, static = arrays.build(cfgs)
     static = static._replace(progress=True)

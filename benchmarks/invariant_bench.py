@@ -1,4 +1,4 @@
-"""Benchmark of hlip_jax.invariant: mRPI construction for a box W and batched membership tests.
+"""Benchmark of hlip_jax.core.invariant: mRPI construction for a box W and batched membership tests.
 
     python benchmarks/invariant_bench.py [--device cpu|gpu] [--points 1000000] [--repeat 20]
 
@@ -54,8 +54,8 @@ def main():
     import jax.numpy as jnp
     import numpy as np
 
-    from hlip_jax import hlip
-    from hlip_jax import invariant as inv
+    from hlip_jax.core import hlip
+    from hlip_jax.core import invariant as inv
 
     z0, ts, td = 0.8, 0.3, 0.1
     A3, B3 = hlip.s2s_matrices(z0, ts, td, with_position=True)

@@ -1,5 +1,5 @@
 """Time the per-scenario summary metrics of one stored chunk (what ``hlip-sweep run`` computes
-after each simulated chunk: :func:`hlip_jax.runner.chunk_metrics`), with the coverage columns,
+after each simulated chunk: :func:`hlip_jax.sweepio.runner.chunk_metrics`), with the coverage columns,
 in one process and with the runner's worker processes, and check both give the same numbers.
 
 Usage::
@@ -20,7 +20,8 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from hlip_jax import metrics, runner, store, sweep  # noqa: E402
+from hlip_jax.analysis import metrics
+from hlip_jax.sweepio import runner, store, sweep  # noqa: E402
 
 
 def main(argv=None) -> int:

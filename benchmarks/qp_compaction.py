@@ -1,4 +1,4 @@
-"""Straggler compaction of hlip_jax.qp.solve: one batch solved by the plain vmapped while loop
+"""Straggler compaction of hlip_jax.core.qp.solve: one batch solved by the plain vmapped while loop
 (``compact=False``: it runs until the batch's slowest problem is done) and by compacted tiers
 (``compact=True``: the unfinished problems continue in batches of 1/k of the size, k =
 ``--shrink``), in
@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import qp
+from hlip_jax.core import qp
 from qp_problems import mpc_like  # benchmarks/qp_problems.py
 
 

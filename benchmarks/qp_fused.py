@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import qp
+from hlip_jax.core import qp
 from qp_problems import mpc_like  # benchmarks/qp_problems.py
 
 

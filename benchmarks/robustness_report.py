@@ -28,9 +28,9 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hlip_jax import store, sweep  # noqa: E402
+from hlip_jax.sweepio import store, sweep  # noqa: E402
 from hlip_jax.analysis import coverage as cov, masks, runs, splits  # noqa: E402
-from hlip_jax.config import RealismConfig  # noqa: E402
+from hlip_jax.simulation.config import RealismConfig  # noqa: E402
 from hlip_jax.analysis.stats import clopper_pearson, rate_text  # noqa: E402
 
 IDEAL = RealismConfig()

@@ -13,7 +13,7 @@ import time
 
 
 def mixed_configs(n: int, duration: float):
-    from hlip_jax.config import (DisturbanceConfig, GainConfig, ObstacleConfig, PathConfig,
+    from hlip_jax.simulation.config import (DisturbanceConfig, GainConfig, ObstacleConfig, PathConfig,
                                  PushConfig, ScenarioConfig)
     shapes = ["circle", "sinusoid", "square", "cardioid", "line", "figure_eight"]
     speeds = [0.3, 0.5, 0.8]
@@ -42,8 +42,9 @@ def main(argv=None):
     if args.x64:
         jax.config.update("jax_enable_x64", True)
     import numpy as np
-    from hlip_jax import arrays, steplog
-    from hlip_jax.bench import timed_run
+    from hlip_jax.simulation import arrays
+    from hlip_jax.core import steplog
+    from hlip_jax.sweepio.bench import timed_run
 
     dev = jax.devices()[0]
     print(f"backend {jax.default_backend()} device {dev.device_kind} | {platform.processor() or platform.machine()}"

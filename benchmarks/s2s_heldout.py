@@ -5,9 +5,9 @@ Usage::
     python benchmarks/s2s_heldout.py RESULTS_DIR
 
 Per path of a results directory with swept seeds: the least-squares map
-[p, v]+ = Â [p, v] + B̂ u + ĉ(stance) per plane (:func:`hlip_jax.s2s_fit.fit`) fitted on the odd
+[p, v]+ = Â [p, v] + B̂ u + ĉ(stance) per plane (:func:`hlip_jax.core.s2s_fit.fit`) fitted on the odd
 seeds, and the residuals of the even seeds under it and under the planner's H-LIP
-(:func:`hlip_jax.s2s_fit.residuals`): RMS and the 1st-99th percentile spread, p [m] and
+(:func:`hlip_jax.core.s2s_fit.residuals`): RMS and the 1st-99th percentile spread, p [m] and
 v [m/s], and their ratio (H-LIP over identified).
 """
 
@@ -19,7 +19,8 @@ from collections import defaultdict
 
 import numpy as np
 
-from hlip_jax import s2s_fit, store
+from hlip_jax.core import s2s_fit
+from hlip_jax.sweepio import store
 
 
 def main(argv=None) -> None:

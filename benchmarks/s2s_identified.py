@@ -22,7 +22,8 @@ import pathlib
 
 import numpy as np
 
-from hlip_jax import s2s_fit, s2s_model, store
+from hlip_jax.core import s2s_fit, s2s_model
+from hlip_jax.sweepio import store
 from hlip_jax.analysis import coverage, estimators, masks, splits, stats
 
 PARTS = ("push-100", "push-200", "noise", "circle")

@@ -1,5 +1,5 @@
 """Why a Cassie sweep runs slower than ``hlip-sweep bench``: the same compiled closed loop
-(:func:`hlip_jax.execution.run`) timed on the benchmark's scenarios and on a shipped sweep's, at
+(:func:`hlip_jax.simulation.execution.run`) timed on the benchmark's scenarios and on a shipped sweep's, at
 one batch size and one simulated duration, in one process.
 
     python benchmarks/sweep_gap.py --batch 256 --duration 2.0 [--sweep sweeps/coverage_study.toml]
@@ -7,7 +7,7 @@ one batch size and one simulated duration, in one process.
 
 Cases:
   sweep       ``batch`` scenarios spread evenly over the sweep file's, duration overridden;
-  bench       the benchmark's straight lines (``hlip_jax.bench.configs``);
+  bench       the benchmark's straight lines (``hlip_jax.sweepio.bench.configs``);
   sweep-qp25  the sweep's scenarios with the CLF-QP's ADMM budget cut to one convergence check
               (25 iterations): the time it saves is the ADMM iterations' cost in the sweep;
   sweep-realism  the sweep's scenarios with the non-ideal robot's stages compiled in
@@ -30,8 +30,8 @@ import time
 
 
 def _cases(name, sweep_file, batch, duration):
-    from hlip_jax import bench
-    from hlip_jax.sweep import load_sweep
+    from hlip_jax.sweepio import bench
+    from hlip_jax.sweepio.sweep import load_sweep
 
     if name == "bench":
         return bench.configs(batch, duration)
@@ -47,7 +47,9 @@ def run_case(name, sweep_file, batch, duration):
     import jax
     import numpy as np
 
-    from hlip_jax import arrays, bench, steplog
+    from hlip_jax.simulation import arrays
+    from hlip_jax.sweepio import bench
+    from hlip_jax.core import steplog
 
     cfgs = _cases(name, sweep_file, batch, duration)
     shapes = arrays.shapes_of(cfgs)
@@ -70,7 +72,9 @@ def per_step(name, sweep_file, batch, duration):
     import jax
     import numpy as np
 
-    from hlip_jax import arrays, execution, progress, steplog
+    from hlip_jax.simulation import arrays, execution
+    from hlip_jax.runtime import progress
+    from hlip_jax.core import steplog
 
     b, static = arrays.build(_cases(name, sweep_file, batch, duration))
     t0 = time.perf_counter()

@@ -39,7 +39,7 @@ import time
 import jax
 import jax.numpy as jnp
 
-from hlip_jax import qp
+from hlip_jax.core import qp
 from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs, warp_physics
 
 

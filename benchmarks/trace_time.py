@@ -1,5 +1,5 @@
 """Where the time before a sweep's first simulated step goes: tracing, lowering and compiling
-the closed loop's segment program (:func:`hlip_jax.rollout.segment_batch`), each timed on
+the closed loop's segment program (:func:`hlip_jax.simulation.rollout.segment_batch`), each timed on
 its own, for a sweep file's first ``--batch`` scenarios.
 
     python benchmarks/trace_time.py [--sweep sweeps/paper.toml] [--batch 6] [--duration 3]
@@ -11,7 +11,7 @@ how fast a rerun can start.  Lowering turns the jaxpr into StableHLO; compiling 
 the persistent cache saves).  Each repeat traces afresh (the jit's cache is cleared between
 repeats); the figures print as they finish.  "start" is the start program's trace, compile and
 first call together, once per process.  XLA settings come from ``XLA_FLAGS`` as given (the CLI's
-own additions, :mod:`hlip_jax.xla_flags`, are not made here).  ``--unrolled-substeps`` measures the tick as it
+own additions, :mod:`hlip_jax.runtime.xla_flags`, are not made here).  ``--unrolled-substeps`` measures the tick as it
 was before its two MJX substeps became a loop (the same MJX step written out twice), for a
 before/after comparison in one process.
 """
@@ -63,8 +63,8 @@ def main(argv=None):
     import jax
     import jax.numpy as jnp
 
-    from hlip_jax import arrays, rollout
-    from hlip_jax.sweep import load_sweep
+    from hlip_jax.simulation import arrays, rollout
+    from hlip_jax.sweepio.sweep import load_sweep
 
     cfgs = list(load_sweep(args.sweep, duration=args.duration).scenarios)[:args.batch]
     batch, static = arrays.build(cfgs)

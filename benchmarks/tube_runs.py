@@ -24,7 +24,7 @@ import numpy as np
 
 def _configs(out_dir: str) -> list[dict]:
     """The results directory's scenario configs, in order (its manifest)."""
-    from hlip_jax import store
+    from hlip_jax.sweepio import store
     return store.read_manifest(out_dir)["configs"]
 
 
@@ -61,7 +61,8 @@ def outside_hull(out_dir: str, hull_file: str) -> tuple[int, int, list[float]]:
     gauge per plane)."""
     from scipy.spatial import ConvexHull
 
-    from hlip_jax import robust, store
+    from hlip_jax.core import robust
+    from hlip_jax.sweepio import store
     tube = [i for i, c in enumerate(_configs(out_dir)) if c["mpc"]["robust"]]
     facets = [ConvexHull(np.concatenate([v, -v])).equations for v in robust.read_hull(hull_file)]
     outside, total, worst = 0, 0, [0.0, 0.0]

@@ -2,14 +2,14 @@
 directory's S2S disturbance samples against their symmetric convex hull.
 
 For each analysis plane the non-push disturbance samples d of every run (the error system
-e⁺ = A_cl e + d of :mod:`hlip_jax.invariant`, in the frame coverage.csv uses) are pooled, and
+e⁺ = A_cl e + d of :mod:`hlip_jax.core.invariant`, in the frame coverage.csv uses) are pooled, and
 the outer mRPI set E of e⁺ = A_cl e + d, d ∈ W, is measured along the two directions the tube
-tightens by (:mod:`hlip_jax.robust`): the COM position e_c (the keep-out margin) and the
+tightens by (:mod:`hlip_jax.core.robust`): the COM position e_c (the keep-out margin) and the
 stepping gain K (U ⊖ K E).  Its support is the series
 
     h_E(g) = Σ_{l ≥ 0} h_W((A_clˡ)ᵀ g),
 
-bounded from above as the tube bounds it (:func:`hlip_jax.robust.hull_bounds`, its last row),
+bounded from above as the tube bounds it (:func:`hlip_jax.core.robust.hull_bounds`, its last row),
 for the symmetric box of half-widths w_j = max |d_j| (what ``hlip-sweep wbox`` gives the tube;
 the hull of its corners, h_W(g) = Σ_j |g_j| w_j) and for the symmetric hull conv(±d_s),
 h_W(g) = max_s |d_s · g|: the smallest convex symmetric set that holds every sample, so no
@@ -25,7 +25,9 @@ import argparse
 
 import numpy as np
 
-from hlip_jax import arrays, robust, store, sweep
+from hlip_jax.simulation import arrays
+from hlip_jax.core import robust
+from hlip_jax.sweepio import store, sweep
 
 
 def pooled(out_dir: str, only: str | None):

@@ -23,7 +23,7 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hlip_jax import store  # noqa: E402
+from hlip_jax.sweepio import store  # noqa: E402
 from hlip_jax.analysis.stats import rate_text  # noqa: E402
 
 PUSH = re.compile(r"push-(?P<force>[\d.]+)-(?P<side>left|right)-(?P<t>[\d.]+)$")

@@ -9,7 +9,7 @@ started::
 
 prints, per run, the time of the first progress line that reports a finished step
 ("first progress") and of the command's end.  The first progress line comes after the first
-segment of steps has been simulated (about a twentieth of the run, :func:`hlip_jax.rollout.
+segment of steps has been simulated (about a twentieth of the run, :func:`hlip_jax.simulation.rollout.
 segment_length`), so the time the simulation started is "first progress" minus that
 segment's share of the run's simulation time (printed as an estimate).
 """
@@ -29,7 +29,7 @@ STEP = re.compile(r"step (\d+)/(\d+)")
 
 def one_run(sweep: str, cache: Path, out: Path, extra: list[str]) -> list[tuple[float, str]]:
     """(seconds since start, line) for every line the command writes."""
-    cmd = [sys.executable, "-m", "hlip_jax.cli", "run", sweep, "--no-report", "--overwrite",
+    cmd = [sys.executable, "-m", "hlip_jax.presentation.cli", "run", sweep, "--no-report", "--overwrite",
            "--out", str(out), "--compile-cache", str(cache), *extra]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -11,7 +11,7 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 # Start the backend now, with the environment pytest was given: a test that runs the CLI
-# in-process sets XLA_FLAGS (one CPU device per core, hlip_jax.xla_flags), and a backend
+# in-process sets XLA_FLAGS (one CPU device per core, hlip_jax.runtime.xla_flags), and a backend
 # started after that would split every later test's batch over the cores.
 jax.devices()
 
@@ -29,7 +29,7 @@ def float64():
 
 @pytest.fixture(autouse=True, scope="session")
 def _private_compile_cache(tmp_path_factory):
-    """The CLI's persistent compilation cache (hlip_jax.compile_cache) goes to a directory of
+    """The CLI's persistent compilation cache (hlip_jax.runtime.compile_cache) goes to a directory of
     this test session, never the user's, also for CLI subprocesses (they inherit the
     variable)."""
     import os
@@ -44,17 +44,17 @@ def _private_compile_cache(tmp_path_factory):
 
 @pytest.fixture(autouse=True)
 def _trace_cache_off_after_each_test():
-    """The traced-program cache (hlip_jax.trace_cache) ends every test off and empty: a test
+    """The traced-program cache (hlip_jax.runtime.trace_cache) ends every test off and empty: a test
     that runs the CLI in-process turns it on (with the compilation cache), and the tests
     after it would otherwise take its path or not depending on their order."""
     yield
-    from hlip_jax import trace_cache
+    from hlip_jax.runtime import trace_cache
     trace_cache.disable()
 
 
 @pytest.fixture(autouse=True)
 def _xla_environment_restored():
-    """The CLI sets XLA's environment when it starts (hlip_jax.xla_flags); a test that runs
+    """The CLI sets XLA's environment when it starts (hlip_jax.runtime.xla_flags); a test that runs
     it in-process must not hand those settings to the subprocesses of later tests."""
     import os
     names = ("XLA_FLAGS", "PJRT_NPROC")

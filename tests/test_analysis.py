@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy import stats as st
 
-from hlip_jax import invariant as inv
-from hlip_jax import sets
+from hlip_jax.core import invariant as inv
+from hlip_jax.core import sets
 from hlip_jax.analysis import estimators, masks, settings, splits, stats
 
 # --------------------------------------------------------------------------------------------

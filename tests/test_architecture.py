@@ -5,8 +5,14 @@ The rules of issue #53:
 
 * no cycle of modules;
 * no cycle of rooms, where a room is a top-level module or a top-level subpackage taken whole
-  (``hlip_jax.plants``, ``hlip_jax.analysis``, ``hlip_jax.render``): an import from a
-  subpackage back into a module that imports the subpackage runs back up a layer;
+  (a layer: ``hlip_jax.core``, ``hlip_jax.plants``, ...): an import from a subpackage back into
+  a module that imports the subpackage runs back up a layer;
+* no import into a higher layer or across one level (:data:`LAYERS`, bottom to top: core and
+  runtime; analysis and plants; simulation; sweep I/O; presentation), and every module of the
+  package lives in a layer;
+* no module outside ``hlip_jax.plants`` imports one plant's modules: the layers above reach a
+  plant through the registry (``plants.load``, ``plants.tools``) and its interface
+  (``plants.base``);
 * no private names across modules: ``from hlip_jax.X import _y`` or ``X._y`` with X another
   hlip_jax module.  A module's own tests may use its private names; other modules may not;
 * the sets and the MPC (``sets``, ``invariant``, ``robust``, ``mpc``) never import the
@@ -30,6 +36,12 @@ TESTS = Path(__file__).resolve().parent
 ALLOWED_PRIVATE: set = set()
 
 ALLOWED_ROOM_CYCLES: set = set()
+
+#: the layers, bottom to top: a module imports only from its own room or a lower level
+LAYERS = {"hlip_jax.core": 0, "hlip_jax.runtime": 0, "hlip_jax.analysis": 1, "hlip_jax.plants": 1,
+          "hlip_jax.simulation": 2, "hlip_jax.sweepio": 3, "hlip_jax.presentation": 4}
+#: the package's own entry points, above every layer
+TOP = {"hlip_jax", "hlip_jax.__main__"}
 
 
 def _module_name(path: Path) -> str:
@@ -163,8 +175,8 @@ def _room_edges(edges):
 def test_graph_is_read():
     """The scan sees the imports it is meant to (function-level ones included)."""
     edges, _ = _scan(_modules())
-    assert "hlip_jax.sets" in edges["hlip_jax.invariant"]
-    assert "hlip_jax.trace_cache" in edges["hlip_jax.compile_cache"]      # inside enable()
+    assert "hlip_jax.core.sets" in edges["hlip_jax.core.invariant"]
+    assert "hlip_jax.runtime.trace_cache" in edges["hlip_jax.runtime.compile_cache"]      # inside enable()
     assert "hlip_jax.analysis.estimators" in edges["hlip_jax.analysis.settings"]   # lazy
 
 
@@ -180,6 +192,48 @@ def test_no_room_cycles():
     assert ALLOWED_ROOM_CYCLES - found == set(), "fixed: remove it from ALLOWED_ROOM_CYCLES"
 
 
+def _upward(edges) -> set:
+    """(importer, imported) pairs that go up or across the layers (or into no layer)."""
+    return {(a, b) for a, targets in edges.items() for b in targets
+            if _room(a) in LAYERS and _room(b) != _room(a)
+            and (_room(b) not in LAYERS or LAYERS[_room(b)] >= LAYERS[_room(a)])}
+
+
+def _direct_plant_imports(edges) -> set:
+    """(importer, imported) pairs where a module outside hlip_jax.plants imports one plant's
+    own module (anything under hlip_jax.plants but the registry and hlip_jax.plants.base)."""
+    return {(a, b) for a, targets in edges.items() for b in targets
+            if _room(a) != "hlip_jax.plants" and b.startswith("hlip_jax.plants.")
+            and b != "hlip_jax.plants.base"}
+
+
+def test_layers_import_only_downwards():
+    """Every module is in a layer; an import goes to the same room or a lower level."""
+    edges, _ = _scan(_modules())
+    assert {_room(m) for m in edges} - set(LAYERS) == TOP, "a module outside the layers"
+    assert _upward(edges) == set(), "an import up or across the layers"
+
+
+def test_generic_modules_reach_plants_through_the_registry():
+    """Outside hlip_jax.plants only the registry (hlip_jax.plants) and the plant interface
+    (hlip_jax.plants.base) are imported, never one plant's own modules."""
+    edges, _ = _scan(_modules())
+    assert _direct_plant_imports(edges) == set()
+
+
+def test_layer_rules_catch_a_violation():
+    """The two rules fail on an upward import, an import across one level and a direct plant
+    import, and pass the registry and a downward import."""
+    edges = {"hlip_jax.core.sets": {"hlip_jax.sweepio.store", "hlip_jax.core.hlip"},
+             "hlip_jax.analysis.coverage": {"hlip_jax.plants", "hlip_jax.core.sets"},
+             "hlip_jax.presentation.cli": {"hlip_jax.plants.cassie.model", "hlip_jax.plants",
+                                           "hlip_jax.plants.base"}}
+    assert _upward(edges) == {("hlip_jax.core.sets", "hlip_jax.sweepio.store"),
+                              ("hlip_jax.analysis.coverage", "hlip_jax.plants")}
+    assert _direct_plant_imports(edges) == {("hlip_jax.presentation.cli",
+                                             "hlip_jax.plants.cassie.model")}
+
+
 def test_no_private_names_across_modules():
     _, private = _scan(_modules())
     assert private - ALLOWED_PRIVATE == set(), "a module uses another module's private name"
@@ -190,7 +244,7 @@ def test_sets_and_mpc_do_not_import_analysis():
     """The sets and the MPC (sets, invariant, robust, mpc) never import the statistics
     pipeline (hlip_jax.analysis), which imports them."""
     edges, _ = _scan(_modules())
-    for core in ("hlip_jax.sets", "hlip_jax.invariant", "hlip_jax.robust", "hlip_jax.mpc"):
+    for core in ("hlip_jax.core.sets", "hlip_jax.core.invariant", "hlip_jax.core.robust", "hlip_jax.core.mpc"):
         assert not {m for m in edges[core] if _room(m) == "hlip_jax.analysis"}, core
 
 

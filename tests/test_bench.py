@@ -1,8 +1,8 @@
-"""hlip_jax.bench: the ADMM-share estimate from two budgets (closed form)."""
+"""hlip_jax.sweepio.bench: the ADMM-share estimate from two budgets (closed form)."""
 
 import pytest
 
-from hlip_jax import bench
+from hlip_jax.sweepio import bench
 
 
 @pytest.mark.parametrize("setup, per_iter", [(1.0, 0.01), (0.2, 0.05), (5.0, 1e-4)])
@@ -43,7 +43,8 @@ def test_a_cut_off_bench_keeps_what_it_measured(monkeypatch, tmp_path):
 
     import numpy as np
 
-    from hlip_jax import cli, execution
+    from hlip_jax.presentation import cli
+    from hlip_jax.simulation import execution
 
     heard = []
     monkeypatch.setattr(execution, "run", lambda batch, static: {"status": np.zeros(2)})

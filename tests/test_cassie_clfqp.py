@@ -12,7 +12,7 @@ import scipy.linalg
 import scipy.sparse as sp
 from mujoco import mjx
 
-from hlip_jax import qp
+from hlip_jax.core import qp
 from hlip_jax.plants.cassie import clfqp, control, dynamics, model, outputs
 
 

@@ -117,7 +117,7 @@ def test_unknown_solve_is_refused(cassie, terms_fn):
 
 
 def test_the_setting_reaches_the_tick():
-    from hlip_jax.config import ImplConfig, ScenarioConfig
+    from hlip_jax.simulation.config import ImplConfig, ScenarioConfig
     from hlip_jax.plants.cassie import plant
     for solve in dynamics.SOLVES:
         cfg = ScenarioConfig(plant="cassie", impl=ImplConfig(condense=solve))

@@ -38,7 +38,7 @@ import pytest
 import scipy.sparse as sp
 from mujoco import mjx
 
-from hlip_jax import qp
+from hlip_jax.core import qp
 from hlip_jax.plants.cassie import clfqp, control, dynamics, outputs
 
 from support import cassie_cpu_reference as cpu_reference

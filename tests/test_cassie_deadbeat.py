@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hlip_jax import arrays, hlip, sweep
+from hlip_jax.simulation import arrays
+from hlip_jax.core import hlip
+from hlip_jax.sweepio import sweep
 from hlip_jax.plants.cassie import gaits
 
 PRESET = gaits.PRESETS["paper"]

@@ -88,7 +88,7 @@ def test_validation_sweep_takes_the_best_drawn_set_that_meets_the_constraint(tmp
     """--validation: the reference and a set with reach > s* are passed over although they
     walk more; the file extends the 148-robot validation sweep with the chosen set's values
     (read back through the sweep loader: every scenario carries them exactly)."""
-    from hlip_jax import sweep
+    from hlip_jax.sweepio import sweep
     ref = {k: gaits.PRESETS["paper"][k] for k in ("cassie.clearance", "cassie.strike", "cassie.reach")}
     bad = {"cassie.clearance": 0.1, "cassie.strike": 0.02, "cassie.reach": 0.99}
     good = {"cassie.clearance": 0.1, "cassie.strike": 0.01, "cassie.reach": 0.7}

@@ -11,7 +11,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hlip_jax import execution, metrics, steplog, store, sweep
+from hlip_jax.simulation import execution
+from hlip_jax.analysis import metrics
+from hlip_jax.core import steplog
+from hlip_jax.sweepio import store, sweep
 
 
 @pytest.mark.slow

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hlip_jax import plants
-from hlip_jax.config import RealismConfig, ScenarioConfig
+from hlip_jax.simulation.config import RealismConfig, ScenarioConfig
 from hlip_jax.plants.cassie import model, plant, realism, tick
 from hlip_jax.plants.cassie.mjx_import import mjx
 
@@ -265,7 +265,7 @@ def test_config_to_params_and_validation():
     assert plant.make_params(ScenarioConfig(plant="cassie"), 1).real is None
     ideal = plant.make_params(ScenarioConfig(plant="cassie"), 1, non_ideal=True).real
     assert ideal.latency.dtype == np.int32 and not bool(ideal.noisy) and ideal.period == 1
-    from hlip_jax import arrays
+    from hlip_jax.simulation import arrays
     ideal_cfg = ScenarioConfig(plant="cassie")
     assert not arrays.shapes_of([ideal_cfg, ideal_cfg]).non_ideal
     assert arrays.shapes_of([ideal_cfg, cfg]).non_ideal
@@ -292,8 +292,9 @@ def test_the_step_log_keeps_the_estimate_beside_the_truth():
     # point depends on the tick history, so a touchdown one tick apart changes all later
     # torques within the solver's tolerance, and the two robots' v differed by 0.062 m/s
     # after three steps (c, p by 2.9 mm): the comparison would measure that, not the detector.
-    from hlip_jax import execution, metrics
-    from hlip_jax.config import CassieConfig, PathConfig
+    from hlip_jax.simulation import execution
+    from hlip_jax.analysis import metrics
+    from hlip_jax.simulation.config import CassieConfig, PathConfig
     base = ScenarioConfig(plant="cassie", duration=1.2, cassie=CassieConfig(qp_rho_start="default"),
                           path=PathConfig(shape="line", params=dict(peak_speed=0.3, length=2.0)))
     cfgs = [dataclasses.replace(base, realism=RealismConfig(**kw)) for kw in (

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hlip_jax.plants.cassie import model, realism, terrain
-from hlip_jax import config as C
+from hlip_jax.simulation import config as C
 
 HALF = terrain.HALF[0]
 
@@ -221,7 +221,8 @@ def test_uneven_ground_makes_the_batch_carry_the_terrain_and_warp_is_refused(fie
     the step batches the block's, bit for bit); such a scenario outside such a batch is an
     error, and the Warp physics (no terrain) refuses it with a message naming the field; a
     step and rough ground together are refused."""
-    from hlip_jax import arrays, plants
+    from hlip_jax.simulation import arrays
+    from hlip_jax import plants
     from hlip_jax.plants.cassie import plant
     flat = C.ScenarioConfig(plant="cassie", duration=2.0)
     uneven = C.ScenarioConfig(plant="cassie", duration=2.0,

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from hlip_jax import arrays, sweep
+from hlip_jax.simulation import arrays
+from hlip_jax.sweepio import sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_SET = ROOT / "docs" / "cassie_protocol" / "cassie_test.toml"

@@ -10,8 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hlip_jax import hlip, sweep
-from hlip_jax.config import (CassieConfig, DisturbanceConfig, HLIPConfig, ImplConfig, PushConfig,
+from hlip_jax.core import hlip
+from hlip_jax.sweepio import sweep
+from hlip_jax.simulation.config import (CassieConfig, DisturbanceConfig, HLIPConfig, ImplConfig, PushConfig,
                              ScenarioConfig)
 from hlip_jax.plants.base import StepCommand
 from hlip_jax.plants.cassie import gaits, model, outputs, plant, tick
@@ -196,7 +197,7 @@ def test_make_params_pushes_and_validation():
     assert float(g.hold_unsolved) == 1.0
     cfg3 = ScenarioConfig(plant="cassie", cassie=CassieConfig(qp_fallback="iterate", qp_max_iter=50))
     assert float(plant.make_params(cfg3, 1).gait.hold_unsolved) == 0.0
-    from hlip_jax import arrays
+    from hlip_jax.simulation import arrays
     _, static = arrays.build([cfg3])
     assert static.plant_settings.qp.max_iter == 50 and static.plant_settings.qp.eps_abs == 1e-4
     assert static.plant_settings.physics == "jax"

@@ -11,8 +11,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from hlip_jax import arrays, bench, execution
-from hlip_jax.config import ImplConfig, ScenarioConfig
+from hlip_jax.simulation import arrays, execution
+from hlip_jax.sweepio import bench
+from hlip_jax.simulation.config import ImplConfig, ScenarioConfig
 from hlip_jax.plants.cassie import control, model, plant, warp_physics
 from hlip_jax.plants.cassie.mjx_import import mjx
 
@@ -33,7 +34,8 @@ def test_warp_needs_warp_lang_and_is_static(monkeypatch):
 def test_a_warp_sweep_without_warp_lang_is_refused_before_it_runs(tmp_path, capsys, monkeypatch):
     # the sweep validator refuses it (exit 2, one line naming the field and the allowed value)
     # before a results directory exists
-    from hlip_jax import cli, plants
+    from hlip_jax.presentation import cli
+    from hlip_jax import plants
     monkeypatch.setattr(plants, "warp_installed", lambda: False)
     sw = tmp_path / "w.toml"
     sw.write_text('name = "w"\n[base]\nplant = "cassie"\nduration = 1.0\n[impl]\n'
@@ -131,7 +133,9 @@ def test_closed_loop_on_warp_walks_like_on_jax():
 def test_physics_override_from_the_command_line(tmp_path, capsys, monkeypatch):
     # --physics sets impl.physics of every scenario (run and show), validated like the file:
     # without warp-lang a Warp run is refused naming the field; an unknown value is exit 2
-    from hlip_jax import cli, plants, sweep
+    from hlip_jax.presentation import cli
+    from hlip_jax import plants
+    from hlip_jax.sweepio import sweep
     monkeypatch.setattr(plants, "warp_installed", lambda: True)    # parsing only: no Warp run
     text = ('name = "o"\n[base]\nplant = "cassie"\nduration = 1.0\n[[paths]]\nshape = "line"\n'
             '[[paths]]\nname = "c"\nshape = "circle"\n[impl]\nphysics = "jax"\n')

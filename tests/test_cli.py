@@ -1,4 +1,4 @@
-"""The ``hlip-sweep`` command line (hlip_jax.cli), run as a subprocess like a user would.
+"""The ``hlip-sweep`` command line (hlip_jax.presentation.cli), run as a subprocess like a user would.
 
 User errors must exit non-zero with one clear line naming the field and no traceback.  Runs
 use the fake closed loop of test_store.py (``HLIP_SWEEP_SIMULATE``) except one end-to-end
@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlip_jax import store
-from hlip_jax.cli import main
+from hlip_jax.sweepio import store
+from hlip_jax.presentation.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
 TESTS = Path(__file__).resolve().parent
@@ -39,7 +39,7 @@ def hs(*args, cwd=None, fake=True, timeout=300, env=None):
         env["HLIP_SWEEP_SIMULATE"] = "test_store:fake_simulate"
     else:
         env.pop("HLIP_SWEEP_SIMULATE", None)
-    return subprocess.run([sys.executable, "-m", "hlip_jax.cli", *map(str, args)], cwd=cwd or ROOT,
+    return subprocess.run([sys.executable, "-m", "hlip_jax.presentation.cli", *map(str, args)], cwd=cwd or ROOT,
                           env=env, capture_output=True, text=True, timeout=timeout)
 
 
@@ -256,7 +256,7 @@ def test_heavy_broken_inputs_in_a_process(name, field, tmp_path):
 
 _MEASURED_MAIN = """
 import atexit, os, sys
-from hlip_jax.cli import main
+from hlip_jax.presentation.cli import main
 
 def _peak():
     with open("/proc/self/status") as f:
@@ -358,7 +358,7 @@ def test_out_too_long_a_name(tmp_path, tiny_sweep, capsys, fake_loop):
 
 def test_disk_full_while_writing_chunks(tmp_path, tiny_sweep, capsys, fake_loop, monkeypatch):
     """A file-system error mid-run: exit 1 (incomplete), one line, the manifest says so."""
-    from hlip_jax import store
+    from hlip_jax.sweepio import store
     real, calls = store.save_npz_atomic, []
 
     def full(path, arrays):
@@ -378,7 +378,7 @@ def test_disk_full_while_writing_chunks(tmp_path, tiny_sweep, capsys, fake_loop,
 
 
 def test_disk_full_at_the_start(tmp_path, tiny_sweep, capsys, fake_loop, monkeypatch):
-    from hlip_jax import store
+    from hlip_jax.sweepio import store
 
     def full(out_dir, man):
         raise OSError(28, "No space left on device")
@@ -390,7 +390,7 @@ def test_disk_full_at_the_start(tmp_path, tiny_sweep, capsys, fake_loop, monkeyp
 
 def test_second_concurrent_run_is_refused(tmp_path, tiny_sweep, capsys, fake_loop):
     """While a run holds the directory, another exits 2 naming the holder and writes nothing."""
-    from hlip_jax import store
+    from hlip_jax.sweepio import store
     out = tmp_path / "o"
     _run_ok(capsys, tiny_sweep, out)
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.name != ".lock"}
@@ -506,7 +506,7 @@ def _slow_run(sweep_file, out):
     import time
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]),
                HLIP_SWEEP_SIMULATE="test_cli:slow_simulate", MPLBACKEND="Agg")
-    proc = subprocess.Popen([sys.executable, "-m", "hlip_jax.cli", "run", str(sweep_file), "--out",
+    proc = subprocess.Popen([sys.executable, "-m", "hlip_jax.presentation.cli", "run", str(sweep_file), "--out",
                              str(out), "--batch", "1", "--quiet", "--no-report"], env=env,
                             text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 120
@@ -614,7 +614,7 @@ def _run_two_processes(sw, out, timeout: int) -> None:
                JAX_NUM_PROCESSES="2", MPLBACKEND="Agg",
                XLA_FLAGS="--xla_force_host_platform_device_count=1")
     env.pop("HLIP_SWEEP_SIMULATE", None)
-    cmd = [sys.executable, "-m", "hlip_jax.cli", "run", str(sw), "--out", str(out),
+    cmd = [sys.executable, "-m", "hlip_jax.presentation.cli", "run", str(sw), "--out", str(out),
            "--no-report", "--quiet", "--distributed"]
     procs = [subprocess.Popen(cmd, env=dict(env, JAX_PROCESS_ID=str(i)), cwd=ROOT, text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE) for i in (0, 1)]
@@ -731,7 +731,7 @@ def test_wbox_prints_sweep_lines_of_the_w_box(tmp_path, capsys):
     symmetric enclosure of the groups' W, rounded up to 1e-4; bad input exits 2."""
     import tomllib
 
-    from hlip_jax import sweep
+    from hlip_jax.sweepio import sweep
     d = tmp_path / "res"
     d.mkdir()
     rows = [("a", "sagittal", "-0.01 -0.05 -0.1", "0.02001 0.01 0.03"),
@@ -770,7 +770,8 @@ def test_whull_writes_the_hull_w_a_sweep_reads(tmp_path, tiny_sweep, capsys, fak
 
     import numpy as np
 
-    from hlip_jax import robust, store, sweep
+    from hlip_jax.core import robust
+    from hlip_jax.sweepio import store, sweep
     out = tmp_path / "o"
     _run_ok(capsys, tiny_sweep, out)
     hull = tmp_path / "w" / "hull.csv"
@@ -817,7 +818,8 @@ def test_run_ticks_refuses_bad_choices_before_running(tmp_path, tiny_sweep, caps
 def test_bench_variant_flags_take_the_config_choices(capsys):
     # the bench's variant flags offer exactly the sweep file's values (one list, in config), and
     # the condensation's and the terms' lists there are the modules' own
-    from hlip_jax import cli, config
+    from hlip_jax.presentation import cli
+    from hlip_jax.simulation import config
     from hlip_jax.plants.cassie import dynamics, model
     spec = lambda f: tuple(config.field_spec(cli._field_table(f)[1], f)["choices"])
     assert spec("condense") == dynamics.SOLVES and spec("terms") == model.TERMS
@@ -900,7 +902,7 @@ def test_a_damaged_manifest_is_one_line(text, frag, tmp_path, tiny_sweep, capsys
 def test_a_hull_w_file_must_be_a_small_regular_file(tmp_path):
     """A FIFO or a device as mpc.w_hull_file is refused before it is opened (it would block
     or never end), as is a file over the size limit."""
-    from hlip_jax import robust
+    from hlip_jax.core import robust
     fifo = tmp_path / "w.fifo"
     os.mkfifo(fifo)
     for path in (fifo, "/dev/zero"):
@@ -1011,7 +1013,7 @@ def test_an_interrupted_report_does_not_speak_of_chunks(tmp_path, tiny_sweep, ca
     advice); it now says to run the report again (exit 130)."""
     out = tmp_path / "o"
     _run_ok(capsys, tiny_sweep, out)
-    from hlip_jax import report
+    from hlip_jax.presentation import report
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt

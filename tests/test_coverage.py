@@ -1,4 +1,4 @@
-"""coverage.csv (hlip_jax.store, hlip_jax.analysis.coverage) from sweeps of the exact H-LIP
+"""coverage.csv (hlip_jax.sweepio.store, hlip_jax.analysis.coverage) from sweeps of the exact H-LIP
 plant with uniform S2S noise of known half-width: the disturbance set W is known, so E's
 coverage has answers to check against (a few seconds per sweep on a CPU core)."""
 
@@ -11,8 +11,9 @@ import math
 import numpy as np
 import pytest
 
-from hlip_jax import invariant as inv
-from hlip_jax import report, runner, store, sweep
+from hlip_jax.core import invariant as inv
+from hlip_jax.presentation import report
+from hlip_jax.sweepio import runner, store, sweep
 from hlip_jax.analysis import coverage as cov
 from hlip_jax.analysis import runs, settings
 

@@ -1,4 +1,4 @@
-"""Tests for hlip_jax.hlip: S2S matrices, gains and orbits.
+"""Tests for hlip_jax.core.hlip: S2S matrices, gains and orbits.
 
 Every closed form in hlip.py is checked against something independent of it: a numerical
 integration of the hybrid dynamics (scipy's DOP853), scipy's Riccati solver, the defining
@@ -12,7 +12,7 @@ import pytest
 import scipy.linalg
 from scipy.integrate import solve_ivp
 
-from hlip_jax import hlip
+from hlip_jax.core import hlip
 
 G = hlip.GRAVITY
 CASES = [  # (z0 [m], t_ssp [s], t_dsp [s])

@@ -6,8 +6,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hlip_jax import execution, steplog, sweep
-from hlip_jax import config as C
+from hlip_jax.simulation import execution
+from hlip_jax.core import steplog
+from hlip_jax.sweepio import sweep
+from hlip_jax.simulation import config as C
 
 LINE = C.PathConfig(shape="line", params=dict(peak_speed=0.5, length=10.0))
 

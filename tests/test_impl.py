@@ -1,4 +1,4 @@
-"""Implementation profiles (hlip_jax.impl): which settings a profile fills on which backend,
+"""Implementation profiles (hlip_jax.runtime.impl): which settings a profile fills on which backend,
 that a sweep's own settings win, and that a run records what it used."""
 
 from __future__ import annotations
@@ -7,7 +7,8 @@ import re
 
 import pytest
 
-from hlip_jax import impl, runner, store, sweep
+from hlip_jax.runtime import impl
+from hlip_jax.sweepio import runner, store, sweep
 
 CASSIE = '[base]\nplant = "cassie"\nduration = 1.0\n[[paths]]\nshape = "line"\n'
 

@@ -1,4 +1,4 @@
-"""Tests for hlip_jax.invariant: W estimation, mRPI sets, zonotope facets, coverage."""
+"""Tests for hlip_jax.core.invariant: W estimation, mRPI sets, zonotope facets, coverage."""
 
 import jax
 
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from hlip_jax import hlip
-from hlip_jax import invariant as inv
-from hlip_jax import sets
-from hlip_jax import set_figures
+from hlip_jax.core import hlip
+from hlip_jax.core import invariant as inv
+from hlip_jax.core import sets
+from hlip_jax.presentation import set_figures
 
 Z0, TS, TD = 0.8, 0.3, 0.1
 _lqr_gain = jax.jit(hlip.lqr_gain)  # one compile per shape instead of eager op-by-op
@@ -555,7 +555,7 @@ def test_closed_loop_per_anchor():
     anchoring c zeroes A's c column (c no longer integrates: the c column of A_cl is B K_c);
     anchoring everything ("measured") leaves e⁺ = w (A_cl = 0, no placement term).  Exact up
     to float64 rounding (1e-12 on O(10) entries)."""
-    from hlip_jax import hlip
+    from hlip_jax.core import hlip
     A, B = (np.asarray(m, np.float64) for m in hlip.s2s_matrices(0.75, 0.35, 0.05, 9.81))
     K = np.asarray(hlip.deadbeat_gain(0.75, 0.35, 0.05, 9.81, with_position=True), np.float64)
     tube, beta = inv.closed_loop(A, B, K)

@@ -7,8 +7,9 @@ step, so the true W of w = x_{k+1} − A x_k − B u_k is the box [±a, ±a, ±b
 import numpy as np
 import pytest
 
-from hlip_jax import execution, invariant
-from hlip_jax.config import DisturbanceConfig, PathConfig, ScenarioConfig
+from hlip_jax.simulation import execution
+from hlip_jax.core import invariant
+from hlip_jax.simulation.config import DisturbanceConfig, PathConfig, ScenarioConfig
 
 NOISE_P, NOISE_V = 0.004, 0.02
 

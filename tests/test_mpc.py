@@ -7,7 +7,7 @@ import osqp
 import pytest
 import scipy.sparse as sp
 
-from hlip_jax import hlip, mpc, qp
+from hlip_jax.core import hlip, mpc, qp
 
 
 def _params(obstacles=np.zeros((0, 3)), active=None, **kw):

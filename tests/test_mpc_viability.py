@@ -8,7 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hlip_jax import arrays, execution, hlip, mpc, qp, sweep
+from hlip_jax.simulation import arrays, execution
+from hlip_jax.core import hlip, mpc, qp
+from hlip_jax.sweepio import sweep
 from tests.test_mpc import _osqp, _params
 
 

@@ -1,4 +1,4 @@
-"""Tests for hlip_jax.paths: tables, speed profiles, turns in place, validation, reference().
+"""Tests for hlip_jax.core.paths: tables, speed profiles, turns in place, validation, reference().
 
 Checks are independent of the builders' own formulas: finite differences and cumulative
 integrals of the sampled tables, the shapes' implicit equations, profile closed forms worked
@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hlip_jax import paths as P
+from hlip_jax.core import paths as P
 
 # Fine tables for the derivative checks: dt = 2 ms.
 FINE = dict(n_samples=25_001, t_final=50.0)  # every default shape fits in 50 s

@@ -4,7 +4,7 @@ import dataclasses
 
 import pytest
 
-from hlip_jax import config as C
+from hlip_jax.simulation import config as C
 from hlip_jax import plants
 
 

@@ -1,4 +1,4 @@
-"""Tests of hlip_jax.qp against OSQP 1.x (the C solver whose algorithm qp.py implements).
+"""Tests of hlip_jax.core.qp against OSQP 1.x (the C solver whose algorithm qp.py implements).
 
 Reference solutions come from OSQP at eps 1e-9 with solution polishing, i.e. accurate to
 near machine precision, so the tolerances below are set by our own stopping tolerance:
@@ -15,7 +15,7 @@ import osqp
 import pytest
 import scipy.sparse as sp
 
-from hlip_jax import qp
+from hlip_jax.core import qp
 
 TIGHT64 = qp.Settings(eps_abs=1e-7, eps_rel=1e-7, max_iter=20000)
 LOOSE32 = qp.Settings(eps_abs=1e-4, eps_rel=1e-4, max_iter=20000)

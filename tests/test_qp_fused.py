@@ -1,5 +1,5 @@
-"""hlip_jax.qp_fused: the fused ADMM block (a Pallas kernel; interpreted on the CPU) against an
-independent numpy loop of OSQP's iteration, against the XLA loop of hlip_jax.qp, and, through
+"""hlip_jax.core.qp_fused: the fused ADMM block (a Pallas kernel; interpreted on the CPU) against an
+independent numpy loop of OSQP's iteration, against the XLA loop of hlip_jax.core.qp, and, through
 the solver, against OSQP.
 
 Tolerances (float64): the kernel, the XLA loop and the numpy loop evaluate the same formulas
@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hlip_jax import qp, qp_fused
+from hlip_jax.core import qp, qp_fused
 from test_qp import (TIGHT64, dual_infeasible_qp, osqp_solve, primal_infeasible_qp, random_qp,
                      rel_err, stack)
 

@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlip_jax import fields, store, xla_flags
+from hlip_jax.core import fields
+from hlip_jax.sweepio import store
+from hlip_jax.runtime import xla_flags
 from test_cli import TINY, _one_line_error, _run_ok, cli, fake_loop  # noqa: F401 (fixture)
 
 
@@ -81,7 +83,7 @@ def test_the_cli_refuses_a_bad_device_count_in_one_line(monkeypatch, capsys):
     line = _one_line_error(code, err)
     assert "XLA_FLAGS" in line and "allowed" in line and "\x1b" not in line and out == ""
     assert err.count("hlip-sweep: error: ") == 1
-    from hlip_jax import cli as cli_mod
+    from hlip_jax.presentation import cli as cli_mod
     assert cli_mod.main(["list"]) == 2        # returned by main, not raised as SystemExit
 
 
@@ -271,7 +273,7 @@ def test_a_run_into_a_read_only_directory_loses_nothing(tmp_path, tiny_sweep, ca
     line = _one_line_error(code, err)
     assert f"--out {out}" in line and ".lock" in line and "Permission denied" in line
     assert _files(out) == before
-    from hlip_jax import runner
+    from hlip_jax.sweepio import runner
     real_verify = runner._verify_stored
 
     def turn_read_only(*a, **kw):            # after the stored chunks are verified
@@ -434,7 +436,8 @@ def test_a_sweep_file_that_is_not_a_regular_file_is_named_as_such(tmp_path, caps
 def test_a_huge_value_is_shown_short(tmp_path, capsys):
     """A polyline of 300,000 waypoints out of range gave a one-line error of 5 MB (the list
     repeated): the value shown is cut to a few hundred characters."""
-    from hlip_jax import paths, sweep
+    from hlip_jax.core import paths
+    from hlip_jax.sweepio import sweep
     pts = [[2e4, float(i)] for i in range(300_000)]
     with pytest.raises(ValueError) as ex:
         paths.make_path("polyline", waypoints=pts)
@@ -483,7 +486,7 @@ def test_a_fifo_manifest_is_named_by_run(done, tiny_sweep, capsys):
 def test_empty_paths_and_a_file_for_a_directory_are_named(tmp_path, capsys):
     # fifth round #35 and #38: `report FILE` said "results directory not found" for a file
     # that exists, `show ''` named '.'
-    from hlip_jax import cli
+    from hlip_jax.presentation import cli
     f = tmp_path / "manifest.json"
     f.write_text("{}")
     assert cli.main(["report", str(f)]) == 2
@@ -498,7 +501,7 @@ def test_empty_paths_and_a_file_for_a_directory_are_named(tmp_path, capsys):
 
 def test_a_grid_field_written_with_base_is_pointed_to_its_name():
     # fifth round #11: "base.duration" as a grid field suggested 'cassie'
-    from hlip_jax import sweep
+    from hlip_jax.sweepio import sweep
     with pytest.raises(sweep.SweepError, match="without 'base.'; did you mean 'duration'"):
         sweep.parse_sweep('[[paths]]\nshape = "line"\n[grid.product]\n"base.duration" = [1.0, 2.0]\n')
 
@@ -574,7 +577,7 @@ def test_bad_mujoco_gl_and_jax_platforms_are_one_line(done, capsys, monkeypatch)
 def test_a_bad_jax_switch_is_one_line():
     import subprocess
     import sys
-    r = subprocess.run([sys.executable, "-c", "import sys; from hlip_jax.cli import main; "
+    r = subprocess.run([sys.executable, "-c", "import sys; from hlip_jax.presentation.cli import main; "
                         "sys.exit(main(['list']))"], capture_output=True, text=True,
                        env={**os.environ, "JAX_ENABLE_X64": "maybe"}, timeout=60)
     line = _one_line_error(r.returncode, r.stderr)
@@ -710,7 +713,7 @@ def test_a_compile_cache_link_in_a_loop_says_so(tiny_sweep, tmp_path, capsys):
 def test_a_full_disk_names_the_results_directory(done, capsys, monkeypatch):
     # #65, #66: "No space left on device" named no file or directory
     import errno
-    from hlip_jax import report
+    from hlip_jax.presentation import report
 
     def full(*a, **k):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))

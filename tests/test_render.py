@@ -1,10 +1,10 @@
-"""``hlip-sweep render`` and ``run --render`` (hlip_jax.render): pictures of a stored Cassie
+"""``hlip-sweep render`` and ``run --render`` (hlip_jax.presentation.render): pictures of a stored Cassie
 scenario, drawn by MuJoCo's renderer on a headless OpenGL (EGL or OSMesa, software on a CPU).
 
 Fast tier: the frames of a known motion (Cassie's standing pose carried along x at 0.5 m/s,
 legs swinging) show the robot, its motion and the keep-out disc; the CLI on a results
 directory written by the fake closed loop of test_store.py, its replay
-(:func:`hlip_jax.tick_report.runs`) replaced by that motion: the files it writes, the
+(:func:`hlip_jax.presentation.tick_report.runs`) replaced by that motion: the files it writes, the
 results left byte for byte, and the one-line errors (exit 2) of a missing OpenGL backend or
 video library, a bad scenario, option or output path.  Slow tier: the real replay of a
 short Cassie run, drawn end to end.
@@ -26,9 +26,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from hlip_jax import cli, steplog, store, sweep, tick_report
+from hlip_jax.presentation import cli, tick_report
+from hlip_jax.core import steplog
+from hlip_jax.sweepio import store, sweep
 from hlip_jax.plants.cassie import model
-from hlip_jax.render import RenderError, clip, files, frames, gl, markers, motion, output
+from hlip_jax.presentation.render import RenderError, clip, files, frames, gl, markers, motion, output
 
 SWEEP = """
 name = "tiny"
@@ -91,7 +93,7 @@ def known_motion(cfg, step_log: dict, index: int = 0) -> motion.Motion:
 
 
 def known_runs(out_dir, indices, *, alone=False):
-    """:func:`hlip_jax.tick_report.runs` with the known motion for the replay: the stored
+    """:func:`hlip_jax.presentation.tick_report.runs` with the known motion for the replay: the stored
     step logs, PER_STEP ticks of the known motion per step."""
     cfgs = [sweep.config_from_dict(c) for c in store.read_manifest(out_dir)["configs"]]
     logs = tick_report.stored_logs(out_dir, indices)

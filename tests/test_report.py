@@ -1,4 +1,4 @@
-"""Report of a results directory (hlip_jax.report): every figure and table is present.
+"""Report of a results directory (hlip_jax.presentation.report): every figure and table is present.
 
 Runs the tiny sweep of test_store.py through its fake closed loop (the report only reads the
 store, so the closed loop does not matter here) and checks the HTML/Markdown for each item.
@@ -15,7 +15,8 @@ import pytest
 
 from test_store import TINY, fake_simulate  # noqa: E402
 
-from hlip_jax import report, runner, store, sweep  # noqa: E402
+from hlip_jax.presentation import report
+from hlip_jax.sweepio import runner, store, sweep  # noqa: E402
 
 
 @pytest.fixture(scope="module")

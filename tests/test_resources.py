@@ -1,10 +1,10 @@
-"""Package data lookup (hlip_jax.resources): the Cassie model and the shipped sweeps are found
+"""Package data lookup (hlip_jax.runtime.resources): the Cassie model and the shipped sweeps are found
 in a source checkout, and a missing directory is a clear error naming where it looked.  (The
 installed-wheel case is checked by .ci/run, which installs the built wheel elsewhere.)"""
 
 import pytest
 
-from hlip_jax import resources
+from hlip_jax.runtime import resources
 
 
 def test_checkout_finds_assets_and_sweeps():

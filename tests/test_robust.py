@@ -1,4 +1,4 @@
-"""Tube MPC (hlip_jax.robust and its rows in hlip_jax.mpc.build_qp).
+"""Tube MPC (hlip_jax.core.robust and its rows in hlip_jax.core.mpc.build_qp).
 
 Independent references: the worst-case disturbance sequence of a box W (each step's d at the
 vertex sign((A_cl^l)ᵀ d_dir) · w), which attains the support of the reachable set F_m exactly,
@@ -17,8 +17,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from hlip_jax import config as C
-from hlip_jax import arrays, execution, hlip, mpc, resources, robust, sweep
+from hlip_jax.simulation import config as C
+from hlip_jax.simulation import arrays, execution
+from hlip_jax.core import hlip, mpc, robust
+from hlip_jax.runtime import resources
+from hlip_jax.sweepio import sweep
 
 
 def _plane(gain_type="lqr"):

@@ -6,9 +6,10 @@ All scenarios run in one compiled, vmapped call (a module fixture), as a sweep w
 import numpy as np
 import pytest
 
-from hlip_jax import arrays, execution, rollout, steplog
+from hlip_jax.simulation import arrays, execution, rollout
+from hlip_jax.core import steplog
 from hlip_jax.analysis import errors
-from hlip_jax.config import (DisturbanceConfig, ObstacleConfig, PathConfig, PushConfig,
+from hlip_jax.simulation.config import (DisturbanceConfig, ObstacleConfig, PathConfig, PushConfig,
                              ScenarioConfig)
 
 SHAPES = ("circle", "sinusoid", "square", "cardioid")
@@ -194,12 +195,12 @@ def test_measured_mode_runs(run):
 
 @pytest.mark.parametrize("name", ["lqr", "slow-tube", "slow-position", "measured"])
 def test_error_recursion_per_mode(run, name):
-    """The logged errors obey the error system :func:`hlip_jax.invariant.closed_loop` gives for
+    """The logged errors obey the error system :func:`hlip_jax.core.invariant.closed_loop` gives for
     the run's ``mpc.mode`` (the log's ``anchor``): e_{k+1} = A_cl e_k + w_k on the H-LIP plant
     (no placement error), with A_cl = A + BK (tube), A (I − e_c e_cᵀ) + BK (position) and 0
     (measured: e⁺ = w).  Tolerance 1e-9: float64 rounding of O(1) states; a wrong A_cl misses
     by the size of e (≥ 1e-3 here)."""
-    from hlip_jax import invariant as inv
+    from hlip_jax.core import invariant as inv
     _, _, log = run
     i = _idx(run, name)
     assert log.status[i] == steplog.STATUS_OK
@@ -236,8 +237,8 @@ def test_stepping_gain_per_plane():
     A + B K nilpotent, checked through its spectral radius: |λ| < 1e-4, since the eigenvalues of a
     nilpotent 3×3 matrix are only accurate to about ε^(1/3) ≈ 6e-6 times its norm); the x row
     stays the LQR gain."""
-    from hlip_jax import hlip
-    from hlip_jax.config import GainConfig, HLIPConfig, ScenarioConfig
+    from hlip_jax.core import hlip
+    from hlip_jax.simulation.config import GainConfig, HLIPConfig, ScenarioConfig
     h = HLIPConfig(z0=0.85, t_ssp=0.26, t_dsp=0.02)
     lqr = GainConfig(type="lqr", q_c=0.05, q_v=0.25, r=4.0)
     K0 = arrays.stepping_gain(ScenarioConfig(hlip=h, gain=lqr))
@@ -255,7 +256,7 @@ def test_progress_news_from_inside_the_loop():
     is reported once, counting up to the last step; the log equals a run without a listener
     (one scan over all steps) to float round-off: the segments only split the scan (1e-12 in
     float64; the two programs are compiled separately, so their last bits may differ)."""
-    from hlip_jax import progress
+    from hlip_jax.runtime import progress
     cfgs = [ScenarioConfig(path=PathConfig(shape="circle", params=dict(peak_speed=v)),
                            duration=4.0) for v in (0.3, 0.6)]
     heard = []
@@ -281,7 +282,7 @@ def test_summary_coverage_uses_the_modes_error_system(run, name):
     keeps c, and E is far smaller than the same log read as a tube run (anchor zeroed), whose
     A + BK sums the disturbances over the slow position mode (|eig| 0.9+) or adds them up for
     the measured mode's one-step errors: at least 3× in volume."""
-    from hlip_jax import metrics
+    from hlip_jax.analysis import metrics
     _, _, log = run
     i = _idx(run, name)
     d = log._asdict()

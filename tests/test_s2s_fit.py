@@ -1,11 +1,12 @@
-"""hlip_jax.s2s_fit: the least-squares S2S map against the exact H-LIP plant, whose map is
+"""hlip_jax.core.s2s_fit: the least-squares S2S map against the exact H-LIP plant, whose map is
 known in closed form (hlip.s2s_matrices at the plant's own z0, T_SSP, T_DSP)."""
 
 import numpy as np
 import pytest
 
-from hlip_jax import execution, hlip, s2s_fit
-from hlip_jax.config import DisturbanceConfig, PathConfig, ScenarioConfig
+from hlip_jax.simulation import execution
+from hlip_jax.core import hlip, s2s_fit
+from hlip_jax.simulation.config import DisturbanceConfig, PathConfig, ScenarioConfig
 
 
 def _log(dist: DisturbanceConfig, seeds=(1, 2, 3)):

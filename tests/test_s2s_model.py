@@ -1,4 +1,4 @@
-"""The identified S2S model (hlip_jax.s2s_model): the fit against a map of known coefficients,
+"""The identified S2S model (hlip_jax.core.s2s_model): the fit against a map of known coefficients,
 the lift to [c, p, v] against the H-LIP's closed form, the file's checks, and
 ``s2s.model = "identified"`` end to end on the exact H-LIP plant (its own map identified from
 its own runs gives back the H-LIP's runs), with ``hlip-sweep identify``."""
@@ -10,7 +10,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hlip_jax import arrays, cli, config as C, hlip, runner, s2s_model, store, sweep
+from hlip_jax.simulation import arrays, config as C
+from hlip_jax.presentation import cli
+from hlip_jax.core import hlip, s2s_model
+from hlip_jax.sweepio import runner, store, sweep
 
 A2 = np.array([[1.3, 0.2], [2.4, 1.2]])
 B2 = np.array([-1.25, -2.0])

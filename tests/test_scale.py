@@ -16,8 +16,9 @@ import jax
 import numpy as np
 import pytest
 
-from hlip_jax import execution, runner, store, sweep
-from hlip_jax.config import PathConfig, ScenarioConfig
+from hlip_jax.simulation import execution
+from hlip_jax.sweepio import runner, store, sweep
+from hlip_jax.simulation.config import PathConfig, ScenarioConfig
 
 SMALL_SWEEP = textwrap.dedent("""
     name = "scale-test"
@@ -62,7 +63,7 @@ SHARDED = textwrap.dedent("""
     import numpy as np
     from pathlib import Path
     from hlip_jax import arrays, execution, progress, trace_cache
-    from hlip_jax.config import PathConfig, ScenarioConfig
+    from hlip_jax.simulation.config import PathConfig, ScenarioConfig
     trace_cache.enable(Path(sys.argv[1]))
     cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
             for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("square", 0.4),
@@ -122,7 +123,7 @@ class Other:
 
 
 def test_a_cpu_pool_no_larger_than_the_devices_is_refused(monkeypatch):
-    """jaxlib 0.10 with as many CPU devices as pool threads can hang (hlip_jax.xla_flags):
+    """jaxlib 0.10 with as many CPU devices as pool threads can hang (hlip_jax.runtime.xla_flags):
     the split is refused with the remedy named; one more thread, or jaxlib 0.11, passes."""
     class Mesh:
         size = 2
@@ -154,7 +155,7 @@ DISPATCHED = textwrap.dedent("""
         jax.distributed.initialize(f"localhost:{sys.argv[2]}", 2, int(sys.argv[1]))
     import numpy as np
     from hlip_jax import arrays, execution, progress
-    from hlip_jax.config import PathConfig, ScenarioConfig
+    from hlip_jax.simulation.config import PathConfig, ScenarioConfig
     cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
             for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("square", 0.4)])]
     whole = execution.simulate(cfgs, spread="dispatch")

@@ -5,7 +5,7 @@ general zonotope construction, the determinant sum and closed forms."""
 import numpy as np
 import pytest
 
-from hlip_jax import sets
+from hlip_jax.core import sets
 
 
 def _cases(n: int, count: int = 12, seed: int = 0):

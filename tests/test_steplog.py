@@ -1,9 +1,9 @@
-"""The step-log vocabulary (hlip_jax.steplog): fields, the alive mask, the S2S residual and the
+"""The step-log vocabulary (hlip_jax.core.steplog): fields, the alive mask, the S2S residual and the
 heading-frame rotation, each against an independent construction."""
 
 import numpy as np
 
-from hlip_jax import hlip, steplog
+from hlip_jax.core import hlip, steplog
 
 
 def test_fields_and_step_fields():

@@ -1,4 +1,4 @@
-"""Results store (hlip_jax.store): chunked atomic writes, manifest, summary, resume.
+"""Results store (hlip_jax.sweepio.store): chunked atomic writes, manifest, summary, resume.
 
 Uses a small fake closed loop (``fake_simulate``) that produces a Log with the rollout
 contract's fields from the H-LIP S2S map, deterministic in each config's seed; so these tests
@@ -18,7 +18,9 @@ import jax
 import numpy as np
 import pytest
 
-from hlip_jax import hlip, metrics, runner, steplog, store, sweep
+from hlip_jax.core import hlip, steplog
+from hlip_jax.analysis import metrics
+from hlip_jax.sweepio import runner, store, sweep
 from hlip_jax.analysis import errors
 
 TINY = """
@@ -319,7 +321,7 @@ def test_missing_results_dir(tmp_path):
 def test_kill_and_resume_real_closed_loop(tmp_path):
     """Same equality with the real H-LIP closed loop (one compile, reused in-process):
     resumed chunks must be bit-identical, i.e. the rollout is deterministic per chunk."""
-    from hlip_jax import execution
+    from hlip_jax.simulation import execution
     sw = sweep.parse_sweep("""
 [base]
 duration = 2.0

@@ -1,4 +1,4 @@
-"""Sweep files → validated ScenarioConfig lists (hlip_jax.sweep).
+"""Sweep files → validated ScenarioConfig lists (hlip_jax.sweepio.sweep).
 
 The broken corpus in tests/sweeps_broken/ holds one mistake per file; each file's
 ``# expect: ...`` header lines list substrings its error message must contain (the field, the
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from hlip_jax import config as C
-from hlip_jax import sweep
+from hlip_jax.simulation import config as C
+from hlip_jax.sweepio import sweep
 
 ROOT = Path(__file__).resolve().parent.parent
 SHIPPED = sorted((ROOT / "sweeps").glob("*.toml"))

@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from hlip_jax import cli, runner, store, sweep, tick_report
+from hlip_jax.presentation import cli, tick_report
+from hlip_jax.sweepio import runner, store, sweep
 from hlip_jax.plants.cassie import plant
 
 # The replay is compared with the sweep to 1e-6 (below).  Its CLF-QP restarts ADMM from the
@@ -110,7 +111,7 @@ def test_measured_accel_and_mismatch_are_exact_on_a_known_motion():
     np.testing.assert_allclose(meas[ok], np.broadcast_to(a, (ok.sum(), 16)), rtol=1e-9, atol=1e-9)
     assert np.all(np.isnan(meas[~ok]))
     flat["ydd_meas"] = meas
-    mm = tick_report.mismatch(flat)
+    mm = tick_report.mismatch(flat, "cassie")
     assert mm["dsp"] == pytest.approx((a[3], a[3] + 1.0)) and mm["ssp"] == pytest.approx((a[3], a[3] + 1.0))
 
 

@@ -1,11 +1,11 @@
-"""The traced-program cache (:mod:`hlip_jax.trace_cache`): a rerun calls the closed loop
+"""The traced-program cache (:mod:`hlip_jax.runtime.trace_cache`): a rerun calls the closed loop
 stored on disk instead of tracing it, and gets the numbers of the plain jitted run.
 
 Equality is bit for bit (NaN where the plain run has NaN): the stored program is the same
 StableHLO the jitted call lowers to, called through a wrapper that XLA inlines, and the CPU
 backend's operations are deterministic, so any difference would be a different program, not
 round-off.  (On a GPU, repeatability also needs XLA's deterministic operations:
-:mod:`hlip_jax.xla_flags`.)
+:mod:`hlip_jax.runtime.xla_flags`.)
 """
 
 import os
@@ -13,8 +13,9 @@ import os
 import numpy as np
 import pytest
 
-from hlip_jax import arrays, compile_cache, execution, trace_cache
-from hlip_jax.config import PathConfig, ScenarioConfig
+from hlip_jax.simulation import arrays, execution
+from hlip_jax.runtime import compile_cache, trace_cache
+from hlip_jax.simulation.config import PathConfig, ScenarioConfig
 
 CONFIGS = [ScenarioConfig(duration=2.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
            for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("sinusoid", 0.4)])]

@@ -167,7 +167,7 @@ def test_models_the_dense_terms_do_not_cover_are_refused():
 
 
 def test_terms_is_a_static_setting():
-    from hlip_jax import config
+    from hlip_jax.simulation import config
     from hlip_jax.plants.cassie import plant
     assert "impl.terms" in config.STATIC_FIELDS
     assert config.field_spec(config.ImplConfig, "terms")["choices"] == model.TERMS
@@ -179,7 +179,8 @@ def test_terms_is_a_static_setting():
 def test_a_walking_step_computes_every_term_as_set(monkeypatch, noisy):
     # the ticks, the step's end (the true state the S2S log records) and, with sensor noise,
     # the estimated state all compute the whole-body terms the way impl.terms says
-    from hlip_jax import arrays, bench, config, rollout
+    from hlip_jax.simulation import arrays, config, rollout
+    from hlip_jax.sweepio import bench
     base = bench.configs(1, 1.0)[0]
     real = config.RealismConfig(joint_noise=0.5) if noisy else base.realism
     cfg = dataclasses.replace(base, realism=real,
@@ -206,7 +207,8 @@ def test_closed_loop_with_dense_terms_walks_as_with_mjx_terms(float64):
     # torques then differ at the solver's tolerance and the closed loop grows that ~10-30x per
     # step (observed: 3e-8 m after steps 1 and 2, 5e-7 after 3, 1e-5 after 4, 3e-3 after 6).
     # Held: the first three steps within 1e-6 m, every step within 1 cm, both walking.
-    from hlip_jax import bench, execution
+    from hlip_jax.sweepio import bench
+    from hlip_jax.simulation import execution
     base = bench.configs(3, 1.5)[2]
     logs = {t: execution.simulate([dataclasses.replace(
         base, impl=dataclasses.replace(base.impl, terms=t))]) for t in ("mjx", "dense")}

@@ -5,7 +5,7 @@ import itertools
 
 import numpy as np
 
-from hlip_jax import runner, store, sweep
+from hlip_jax.sweepio import runner, store, sweep
 
 from support import load_benchmark
 

@@ -1,11 +1,11 @@
 """benchmarks/tube_w_shapes.py's box and hull supports of the mRPI set, against closed forms and
-against hlip_jax.robust's box tables."""
+against hlip_jax.core.robust's box tables."""
 
 
 import numpy as np
 
 
-from hlip_jax import robust
+from hlip_jax.core import robust
 from support import load_benchmark
 
 shape_bounds = load_benchmark("tube_w_shapes").shape_bounds

@@ -1,7 +1,8 @@
-"""The CLI's XLA settings (hlip_jax.xla_flags): deterministic GPU operations and one CPU device
+"""The CLI's XLA settings (hlip_jax.runtime.xla_flags): deterministic GPU operations and one CPU device
 per core, each unless the user's environment already chooses."""
 
-from hlip_jax import cli, xla_flags
+from hlip_jax.presentation import cli
+from hlip_jax.runtime import xla_flags
 
 
 def test_flag_added_unless_the_user_chose():

@@ -7,6 +7,6 @@
                :mod:`.stats`)
 
 :mod:`.settings` holds a sweep's ``[analysis]`` table.  The results directory's
-``coverage.csv`` (:func:`hlip_jax.store.write_coverage`), the per-scenario metrics, the
+``coverage.csv`` (:func:`hlip_jax.sweepio.store.write_coverage`), the per-scenario metrics, the
 report and the CLI compose these parts.
 """

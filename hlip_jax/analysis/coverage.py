@@ -1,6 +1,6 @@
 """Held-out coverage of error sets, over runs first: the rows of ``coverage.csv``.
 
-Per group of runs that share the S2S model and gain (:func:`hlip_jax.store.coverage_rows`),
+Per group of runs that share the S2S model and gain (:func:`hlip_jax.sweepio.store.coverage_rows`),
 per split (:mod:`hlip_jax.analysis.splits`), per plane and per method
 (:mod:`hlip_jax.analysis.estimators`), two rows:
 
@@ -28,14 +28,14 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from hlip_jax import invariant as inv
+from hlip_jax.core import invariant as inv
 from hlip_jax.analysis import estimators, splits, stats
 from hlip_jax.analysis.settings import DEFAULT_METHODS
 from hlip_jax.analysis.runs import RunErrors
 
 #: plane column values per analysis frame (:func:`hlip_jax.analysis.errors.analysis_frame`):
 #: the heading frame's sagittal and lateral planes, or the world's x and y; defined with the
-#: frames in :data:`hlip_jax.invariant.PLANES`
+#: frames in :data:`hlip_jax.core.invariant.PLANES`
 PLANES = inv.PLANES
 
 #: coverage.csv columns, in order: level = "run" or "step"; q = the method's level (NaN for

@@ -6,8 +6,8 @@ robot adds) the S2S error e = x_R − x_H obeys, per plane,
 
     e_{k+1} = A_cl e_k + d_k,   d_k = w_k + β B δu_k,   w_k = x_R,k+1 − A x_R,k − B u_R,k,
 
-with A_cl and β from the loop's anchoring (:func:`hlip_jax.invariant.closed_loop`).  The
-S2S residual w is :func:`hlip_jax.steplog.s2s_residual`, the only definition of w.  Errors and
+with A_cl and β from the loop's anchoring (:func:`hlip_jax.core.invariant.closed_loop`).  The
+S2S residual w is :func:`hlip_jax.core.steplog.s2s_residual`, the only definition of w.  Errors and
 disturbances are rotated into the path's heading frame when both planes share one gain
 (:func:`analysis_frame`).  Units: c and p in metres, v in m/s.
 """
@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hlip_jax import invariant as inv
-from hlip_jax import steplog
+from hlip_jax.core import invariant as inv
+from hlip_jax.core import steplog
 
 
 def error_model(log: dict, s: int):
@@ -50,7 +50,7 @@ def error_system(log: dict, s: int):
 
 def closed_loop(log: dict, s: int):
     """(A_cl (2, n, n), β) of scenario ``s``'s error system e⁺ = A_cl e + w + β B δu on the
-    state :func:`error_model` picks (:func:`hlip_jax.invariant.closed_loop`)."""
+    state :func:`error_model` picks (:func:`hlip_jax.core.invariant.closed_loop`)."""
     return error_system(log, s)[4:]
 
 
@@ -68,7 +68,7 @@ def placement(log: dict, s: int) -> np.ndarray:
 
 def analysis_frame(log: dict, s: int) -> str:
     """The frame of scenario ``s``'s per-plane error analysis: "heading" (sagittal along the
-    path heading θ_d(t_k), lateral to its left; :func:`hlip_jax.invariant.heading_frame`) when
+    path heading θ_d(t_k), lateral to its left; :func:`hlip_jax.core.invariant.heading_frame`) when
     the stepping gain is the same in both planes, else "world" (x, y): a different gain per
     plane does not commute with the rotation."""
     K = np.asarray(log["K_gain"][s], np.float64)

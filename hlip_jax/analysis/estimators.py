@@ -6,7 +6,7 @@ e⁺ = A_cl e + d (:mod:`hlip_jax.analysis.errors`):
 
 ``box``
     W = the per-axis [min, max] box of the samples; E = mRPI(A_cl, W) (Raković et al. 2005,
-    outer set F_s/(1−α); :func:`hlip_jax.sets.mrpi`).  Invariance: if every future d stays in
+    outer set F_s/(1−α); :func:`hlip_jax.core.sets.mrpi`).  Invariance: if every future d stays in
     W, every error started in E stays in E.  No probability statement.
 ``hull``
     W = the convex hull of the samples; E = mRPI(A_cl, W) (template outer approximation).
@@ -17,7 +17,7 @@ e⁺ = A_cl e + d (:mod:`hlip_jax.analysis.errors`):
 ``conformal_run``
     The run-level calibrated set.  E_shape = mRPI(A_cl, box W), W from the shape half of the
     training runs (:func:`shape_and_calibration`); each calibration run i scores
-    s_i = max_k g(e_k), the largest gauge (:func:`hlip_jax.sets.gauge`: the scale of E_shape
+    s_i = max_k g(e_k), the largest gauge (:func:`hlip_jax.core.sets.gauge`: the scale of E_shape
     about its centre that just holds e_k) over its kept errors, +inf for a run that fell (a
     fallen run is scored, not dropped); E_q = s_(m) E_shape with m = ⌈(n+1) q⌉ over the n
     calibration runs.  Guarantee (split conformal prediction over runs): a new run drawn
@@ -48,8 +48,8 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from hlip_jax import invariant as inv
-from hlip_jax import sets
+from hlip_jax.core import invariant as inv
+from hlip_jax.core import sets
 from hlip_jax.analysis.errors import W_MIN_HALFWIDTH
 
 
@@ -102,7 +102,7 @@ def conformal_step_w(d, q: float) -> sets.Box:
 
 
 def mrpi_shape(A_cl: np.ndarray, W, runs_e=None):
-    """E = mRPI(A_cl, W) (:func:`hlip_jax.invariant.mrpi`; a flat box axis is widened to
+    """E = mRPI(A_cl, W) (:func:`hlip_jax.core.invariant.mrpi`; a flat box axis is widened to
     :data:`W_MIN_HALFWIDTH`)."""
     return inv.mrpi(A_cl, W, min_halfwidth=W_MIN_HALFWIDTH if isinstance(W, sets.Box) else None)
 
@@ -162,7 +162,7 @@ def calibrate(E_shape, scores: np.ndarray, q: float) -> sets.Scaled:
 
 class Fitted(NamedTuple):
     """A method's sets for one plane: ``W`` the disturbance set, ``E`` the error set (for a
-    calibrated method E_q = s E_shape, a :class:`hlip_jax.sets.Scaled`), ``samples`` the
+    calibrated method E_q = s E_shape, a :class:`hlip_jax.core.sets.Scaled`), ``samples`` the
     disturbance samples W came from, ``calibration_runs`` the runs scored (0 for an
     uncalibrated method)."""
     W: object

@@ -1,8 +1,8 @@
 """Which pre-impact samples of a run the statistics count: the masks, defined once.
 
-Per run of K logged steps (k = 0 … K−1; :mod:`hlip_jax.steplog`):
+Per run of K logged steps (k = 0 … K−1; :mod:`hlip_jax.core.steplog`):
 
-* ``alive`` (K,): steps before the first invalid one (:func:`hlip_jax.steplog.alive`); a
+* ``alive`` (K,): steps before the first invalid one (:func:`hlip_jax.core.steplog.alive`); a
   fallen run's steps end at its fall.
 * ``settled`` (K,): k ≥ max(1, warm-up).  e_0 is never counted: x_R,0 is the robot standing
   on both feet (:attr:`hlip_jax.plants.Plant.measure`; on the point-mass H-LIP the H-LIP's own
@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from hlip_jax import steplog
+from hlip_jax.core import steplog
 
 #: default warm-up [steps]: errors k < WARMUP are the start's transient (e_0 never counts).
 #: Measured on the 1024-run coverage study (docs/coverage_study.md, "Warm-up"): the median

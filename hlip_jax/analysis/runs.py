@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from hlip_jax import steplog
+from hlip_jax.core import steplog
 from hlip_jax.analysis import errors, masks as masks_mod
 
 

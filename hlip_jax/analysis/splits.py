@@ -17,7 +17,7 @@ side; with an even number of values the largest is held out, so a held-out speed
 trained ones or, for the largest, beyond them.  A value
 split (:func:`by_values`, the CLI's ``--train-on FIELD=V1,V2``) trains on the listed values.
 
-Within one run (the summary's per-scenario figure, :mod:`hlip_jax.metrics`) the steps are
+Within one run (the summary's per-scenario figure, :mod:`hlip_jax.analysis.metrics`) the steps are
 split in time instead (:func:`time_halves`): the first half of the kept steps trains, the
 second tests.  Steps of one run are correlated, so this is a consistency check of that run,
 not a held-out statistic.

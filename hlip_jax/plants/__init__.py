@@ -64,7 +64,7 @@ CHECKS = {"hlip": "hlip_jax.plants.hlip_plant", "cassie": "hlip_jax.plants.cassi
 
 
 #: the scenario tables a plant owns: table -> (module, its config class); the scenario config
-#: (:class:`hlip_jax.config.ScenarioConfig`) holds one of each, found here
+#: (:class:`hlip_jax.simulation.config.ScenarioConfig`) holds one of each, found here
 SETTINGS = {"cassie": ("hlip_jax.plants.cassie.config", "CassieConfig"),
             "realism": ("hlip_jax.plants.cassie.config", "RealismConfig")}
 
@@ -95,6 +95,22 @@ def with_presets(raw: dict) -> dict:
         except KeyError as err:          # an unknown preset: its message lists the known ones
             raise ValueError(str(err)) from None
     return raw
+
+
+#: a plant's parts for the layers above the closed loop (the per-tick log's clock and phases,
+#: the scene and ground a renderer draws, the physics-only benchmark, the default gait, the
+#: physics check): name -> module, imported on first :func:`tools`.  A plant without one has
+#: no per-tick log and nothing to draw (the exact H-LIP plant).
+TOOLS = {"cassie": "hlip_jax.plants.cassie.tools"}
+
+
+def tools(name: str):
+    """The tools module of plant ``name`` (:data:`TOOLS`); ValueError naming the plants that
+    have one for any other."""
+    if name not in TOOLS:
+        raise ValueError(f"plant {name!r} has no per-tick log, scene or physics benchmark; "
+                         f"plants with them: {', '.join(repr(n) for n in TOOLS)}")
+    return importlib.import_module(TOOLS[name])
 
 
 def load(name: str) -> Plant:

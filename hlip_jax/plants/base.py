@@ -3,7 +3,7 @@
 One *walking step* runs from one pre-impact instant SSP⁻_k to the next SSP⁻_{k+1}:
 at SSP⁻_k the swing foot lands (the step u_k, already decided, is placed), then DSP, then SSP
 on the new stance foot while the other foot swings towards the next step u_{k+1}.  The closed
-loop (:mod:`hlip_jax.rollout`) gives the plant the H-LIP's nominal motion over that interval
+loop (:mod:`hlip_jax.simulation.rollout`) gives the plant the H-LIP's nominal motion over that interval
 and the stepping gain; the plant decides the robot's own next step by the stepping law
 
     u_robot = u_HLIP + K (x_robot − x_HLIP)            (per plane, x = [c, p, v])
@@ -17,7 +17,7 @@ A plant is any object with
     step(params, state, cmd: StepCommand) -> (state, StepResult)
 
 both pure, jit- and vmap-able; ``params`` is the plant's per-scenario pytree (built by the
-plant's ``make_params`` from a :class:`hlip_jax.config.ScenarioConfig`); ``heading0`` is the
+plant's ``make_params`` from a :class:`hlip_jax.simulation.config.ScenarioConfig`); ``heading0`` is the
 path's heading at t = 0 [rad], the way a robot with an orientation starts facing.
 """
 
@@ -66,7 +66,7 @@ class StepResult(NamedTuple):
 
 
 def push_table(pushes, n_push: int):
-    """Fixed-size arrays of a scenario's pushes (:class:`hlip_jax.config.PushConfig`):
+    """Fixed-size arrays of a scenario's pushes (:class:`hlip_jax.simulation.config.PushConfig`):
     start and end times (n_push,) [s] (unused slots −1, never active) and the horizontal force
     (n_push, 2) [N] in world x, y."""
     pushes = list(pushes)

@@ -59,7 +59,7 @@ class State(NamedTuple):
 
 
 def make_params(cfg, max_pushes: int) -> Params:
-    """Per-scenario plant data of a scenario config ``cfg`` (:class:`hlip_jax.config.ScenarioConfig`);
+    """Per-scenario plant data of a scenario config ``cfg`` (:class:`hlip_jax.simulation.config.ScenarioConfig`);
     0 in a mismatch field means "the planner's value"."""
     d, h = cfg.disturbance, cfg.hlip
     start, end, force = push_table(d.pushes, max_pushes)

@@ -471,7 +471,7 @@ class QPSolver:
     (δ, δ) diagonal; A's CLF rows (all n columns), the friction rows' τ columns and the
     identity of the box rows.  :meth:`solve` updates (Px, q, Ax, l, u), warm-starts from the previous tick's (x, y)
     and resets ρ to ρ₀ when the last solve adapted it, so every tick starts like
-    :func:`hlip_jax.qp.solve` (fresh ρ₀, Ruiz scaling of the new data, warm x, y)."""
+    :func:`hlip_jax.core.qp.solve` (fresh ρ₀, Ruiz scaling of the new data, warm x, y)."""
 
     def __init__(self, nu: int, settings=clfqp.DEFAULT_SETTINGS):
         G = clfqp.N_GROUPS
@@ -525,7 +525,7 @@ class TickResult(NamedTuple):
     delta: np.ndarray     # (N_GROUPS,) CLF relaxations
     V: np.ndarray         # (N_GROUPS,) CLF values
     Vdot: np.ndarray      # (N_GROUPS,) predicted V̇_g at τ
-    status: int           # OSQP status code (hlip_jax.qp codes)
+    status: int           # OSQP status code (hlip_jax.core.qp codes)
     iterations: int
 
 

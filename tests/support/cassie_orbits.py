@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import hlip
+from hlip_jax.core import hlip
 from hlip_jax.plants.base import StepCommand
 from hlip_jax.plants.cassie import gaits, model, plant, tick
 
@@ -92,7 +92,7 @@ def walk_orbits(v_fwd, v_lat, yaw_rate, n_steps: int, *, z0=0.8, t_ssp=0.3, t_ds
     the robot steps by the stepping law (deadbeat K by default).  One robot per entry of
     ``v_fwd``, ``v_lat``, ``yaw_rate`` (arrays of equal length B, vmapped); ``z0``, ``t_ssp``,
     ``t_dsp``, ``width`` are scalars or per-robot arrays, ``gain`` is (2, 3) or (B, 2, 3),
-    ``gait`` a :class:`hlip_jax.config.CassieConfig` or a sequence of B of them; ``noise_v``
+    ``gait`` a :class:`hlip_jax.simulation.config.CassieConfig` or a sequence of B of them; ``noise_v``
     [m/s] and ``step_error`` [m] (scalars or per robot) the step noise of the module doc, drawn
     from robot i's key PRNGKey(i).
     Returns (WalkLog, per-step tick logs if ``return_ticks``)."""

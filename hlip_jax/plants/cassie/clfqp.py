@@ -38,7 +38,7 @@ QP over x = [τ (nu), δ (4)]:
 with τ_prev the previous tick's solution (the chatter term w_c, 0 by default, smooths the
 torques from tick to tick as Xiong's Cassie controller does) and μ_PD = −k_p e − k_d ė the CLF's own LQR input (the tracking term keeps the QP strictly
 convex and the torque near the LQR's; the CLF rows are the guarantee), solved by
-:func:`hlip_jax.qp.solve` warm-started from the previous tick; with ``fallback`` a tick whose QP is not
+:func:`hlip_jax.core.qp.solve` warm-started from the previous tick; with ``fallback`` a tick whose QP is not
 solved within the iteration budget (typically infeasible contact rows at an impact) keeps the
 previous tick's torques, otherwise the last iterate is used (clipped to the limits).
 """
@@ -51,7 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hlip_jax import qp
+from hlip_jax.core import qp
 from hlip_jax.plants.cassie import dynamics, outputs
 
 N_SITES = 4
@@ -221,7 +221,7 @@ def solve(meas, des, cond, contact, tau_min, tau_max, gains: Gains, warm,
     ``active`` false (traced boolean): the tick's torques are not used; a trivial QP is solved
     instead (:func:`idle`) and the result carries ``warm`` unchanged.  ``compact`` (static):
     a batch vmapped around this call is solved with straggler compaction
-    (:func:`hlip_jax.qp.solve`).  ``rho_previous`` (bool or traced boolean scalar): start
+    (:func:`hlip_jax.core.qp.solve`).  ``rho_previous`` (bool or traced boolean scalar): start
     the ADMM from the previous tick's final step size ρ (``warm[2]``) instead of
     ``settings.rho``, as OSQP does when its workspace is updated and warm-started."""
     nu = jnp.shape(tau_min)[0]

@@ -1,13 +1,13 @@
 """The Cassie plant's own settings tables: the controller and gait (:class:`CassieConfig`,
 a scenario's ``cassie.*``) and how far the simulated robot is from the ideal plant
-(:class:`RealismConfig`, ``realism.*``).  The scenario config (:mod:`hlip_jax.config`) finds
+(:class:`RealismConfig`, ``realism.*``).  The scenario config (:mod:`hlip_jax.simulation.config`) finds
 them through the plant registry (:func:`hlip_jax.plants.settings_class`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hlip_jax.fields import spec
+from hlip_jax.core.fields import spec
 from hlip_jax.plants.cassie import gaits
 
 #: the default gait's values, the defaults of the fields below

@@ -1,7 +1,7 @@
 """Named gait presets of the Cassie plant (pure Python: the sweep validator imports it).
 
 A gait is everything that shapes how the simulated Cassie walks, wherever the setting lives in
-a :class:`hlip_jax.config.ScenarioConfig`: the H-LIP timing and COM height the planner and the
+a :class:`hlip_jax.simulation.config.ScenarioConfig`: the H-LIP timing and COM height the planner and the
 stepping law share (``hlip.*``), the stepping gain (``gain.*``), the MPC's step-width bounds
 (``mpc.step_width_*``) and the controller's own parameters (``cassie.*``).  A scenario with
 ``plant = "cassie"`` names its gait with ``cassie.gait``; every dotted field of that preset that

@@ -49,7 +49,7 @@ import numpy as np
 
 from hlip_jax.plants.cassie.mjx_import import mjx
 from hlip_jax.plants.cassie import tree_terms
-from hlip_jax import resources
+from hlip_jax.runtime import resources
 
 ASSET_DIR = resources.data_dir("assets", "cassie")
 SCENE_XML = ASSET_DIR / "scene.xml"

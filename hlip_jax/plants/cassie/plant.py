@@ -141,8 +141,8 @@ def tick_budget(t_step: float) -> int:
 
 def make_params(cfg, n_push: int, t_step: float = 0.0, non_ideal: bool = False,
                 ground: str = "flat") -> Params:
-    """Per-scenario plant data from a :class:`hlip_jax.config.ScenarioConfig`; pushes act on
-    the pelvis (force and direction of each :class:`hlip_jax.config.PushConfig`).  The tick
+    """Per-scenario plant data from a :class:`hlip_jax.simulation.config.ScenarioConfig`; pushes act on
+    the pelvis (force and direction of each :class:`hlip_jax.simulation.config.PushConfig`).  The tick
     budget covers steps of ``max(t_step, step_span(cfg))`` (pass the sweep's longest span so
     that every chunk has one shape).  ``non_ideal``: the batch has a robot that departs from
     the ideal plant (``cfg.realism``), so every robot carries realism data; otherwise none

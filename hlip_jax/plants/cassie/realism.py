@@ -1,7 +1,7 @@
 """How the simulated Cassie departs from the ideal plant: motors, latency, sensing, touchdown
 detection, model errors and ground slope — each a per-scenario number, so a sweep over any of
 them shares one compiled program, and the defaults (those of
-:class:`hlip_jax.config.RealismConfig`) leave today's ideal plant exactly as it was: a batch of
+:class:`hlip_jax.simulation.config.RealismConfig`) leave today's ideal plant exactly as it was: a batch of
 ideal robots carries no realism data and compiles none of this
 (:mod:`hlip_jax.plants.cassie.tick`), and in a batch that does, an ideal robot's stages select
 their ideal branch (no arithmetic touches its torques or measurements).
@@ -109,7 +109,7 @@ class RealState(NamedTuple):
 
 
 def make(cfg) -> Realism:
-    """:class:`Realism` (numpy) of a :class:`hlip_jax.config.RealismConfig` (angles there in
+    """:class:`Realism` (numpy) of a :class:`hlip_jax.simulation.config.RealismConfig` (angles there in
     degrees)."""
     f, rad = np.float64, np.deg2rad
     noise = (cfg.joint_noise, cfg.joint_rate_noise, cfg.imu_noise, cfg.imu_rate_noise,

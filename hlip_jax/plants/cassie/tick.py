@@ -59,7 +59,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hlip_jax.plants.cassie.mjx_import import mjx
-from hlip_jax import hlip
+from hlip_jax.core import hlip
 from hlip_jax.plants.base import StepCommand, clip_step
 from hlip_jax.plants.cassie import clfqp, collisions, control, dynamics, model, outputs, realism
 
@@ -103,7 +103,7 @@ class Context(NamedTuple):
 class Settings(NamedTuple):
     """Static settings of the tick (hashable; a change recompiles): the CLF-QP's ADMM
     settings, whether the robots' QPs are solved with straggler compaction across the vmapped
-    batch (:func:`hlip_jax.qp.solve`'s ``compact``), the implementation that steps the
+    batch (:func:`hlip_jax.core.qp.solve`'s ``compact``), the implementation that steps the
     physics, "jax" (MJX-JAX) or "warp" (MJX's Warp implementation, :mod:`warp_physics`), and
     the number of robots stepped together in one vmapped batch (Warp sizes its contact buffer
     for all of them at once), how the condensation solves for the constraint forces
@@ -153,7 +153,7 @@ class TickLog(NamedTuple):
     tau: jax.Array           # (10,) torques the motors apply [N m, motor side]
     V: jax.Array             # CLF value, summed over the output groups
     contact: jax.Array       # (4,) sites in the constraint set
-    status: jax.Array        # CLF-QP status (hlip_jax.qp codes)
+    status: jax.Array        # CLF-QP status (hlip_jax.core.qp codes)
     iterations: jax.Array    # CLF-QP ADMM iterations of the tick
     pelvis: jax.Array        # (7,) pelvis position [m] and quaternion
     phase: jax.Array         # DSP 0, SSP 1, done 2
@@ -170,7 +170,7 @@ class TickLog(NamedTuple):
                              # (the time derivative of ``ydot``) it shows the model's mismatch
     qpos: jax.Array          # (nq,) the simulated robot's generalised positions at the tick's
                              # start (MuJoCo qpos: pelvis free joint [m, quaternion], then the
-                             # legs' joints [rad]; hlip_jax.render draws the robot from them)
+                             # legs' joints [rad]; hlip_jax.presentation.render draws the robot from them)
 
 
 def robot_state(terms: model.RobotTerms, stance):
