@@ -72,3 +72,27 @@ def test_a_user_pool_too_small_for_the_devices_is_one_line(monkeypatch, capsys):
     assert cli.main(["list"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "PJRT_NPROC=4" in err and "Traceback" not in err
+
+
+def test_a_flag_xla_does_not_know_is_refused_in_one_line_exit_2(tmp_path):
+    """XLA ends the process (a fatal log line, exit 1) on an unknown flag; the CLI finds it in a
+    probe process first and exits 2 with one line naming XLA_FLAGS and the flag."""
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, XLA_FLAGS="--xla_no_such_flag_here=1")
+    r = subprocess.run([sys.executable, "-m", "hlip_jax", "show", "paper_hlip"], env=env,
+                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "XLA_FLAGS" in lines[0] and "--xla_no_such_flag_here=1" in lines[0]
+    assert xla_flags.refused("--xla_no_such_flag_here=1") is not None
+
+
+def test_only_the_modules_own_flags_need_no_probe(monkeypatch):
+    """Flags this module reads are checked by problem(); refused() starts no process for them."""
+    def no_process(*a, **k):
+        raise AssertionError("a probe process was started")
+    monkeypatch.setattr(xla_flags.subprocess, "run", no_process)
+    assert xla_flags.refused(f"{xla_flags.FLAG}=true {xla_flags.DEVICES_FLAG}=2") is None
+    assert xla_flags.refused("") is None

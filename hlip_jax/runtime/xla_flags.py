@@ -27,13 +27,17 @@ the process on a value it cannot read (a device count of ``abc`` or ``²`` print
 listing and exits 1; ``0`` or ``-1`` fails to start the CPU backend).  :func:`problem` checks
 the two flags this module reads or sets before that: each device count must be a count of
 :data:`MAX_CPU_DEVICES` or fewer in ASCII digits, each ``--xla_gpu_deterministic_ops`` value
-``true`` or ``false`` (or ``1``/``0``); :func:`apply` refuses anything else in one line,
-exit 2.
+``true`` or ``false`` (or ``1``/``0``); a flag XLA does not know (it logs "Unknown flag in
+XLA_FLAGS" and ends the process) is found by :func:`refused` in a probe process; :func:`apply`
+refuses each in one line, exit 2.
 """
 
 from __future__ import annotations
 
 import os
+import re
+import subprocess
+import sys
 from typing import MutableMapping
 
 FLAG = "--xla_gpu_deterministic_ops"
@@ -115,6 +119,30 @@ def problem(flags: str) -> str | None:
     return None
 
 
+def refused(flags: str, environ: MutableMapping[str, str] = os.environ) -> str | None:
+    """Whether XLA would end the process on ``flags`` for a flag it does not know: a fatal log
+    line ("Unknown flag in XLA_FLAGS"), not an exception, when the backend starts.  Asked of a
+    separate Python process that starts JAX's CPU backend with ``flags`` (about a second),
+    and only when ``flags`` names a flag other than the two this module reads
+    (:data:`DEVICES_FLAG`, :data:`FLAG`).  None, or one line naming ``XLA_FLAGS``, the flag
+    and what to do; a probe that fails for another reason says nothing (the run goes on)."""
+    extra = [f for f in flags.split() if f.partition("=")[0] not in (DEVICES_FLAG, FLAG)]
+    if not extra:
+        return None
+    env = dict(environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
+    try:
+        r = subprocess.run([sys.executable, "-c", "import jax; jax.devices()"], env=env,
+                           capture_output=True, text=True, timeout=300)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    m = re.search(r"Unknown flags? in XLA_FLAGS: *(\S.*)", r.stderr)
+    if r.returncode == 0 or m is None:
+        return None
+    return (f"XLA_FLAGS: {ascii(m.group(1).strip()[:80])} is not a flag of the installed XLA "
+            "(XLA would end the process); allowed: the flags XLA lists for this jaxlib (remove "
+            "it or unset XLA_FLAGS)")
+
+
 class FlagsError(ValueError):
     """A user's ``XLA_FLAGS`` that XLA would abort on (the message names the flag and what is
     allowed, :func:`problem`)."""
@@ -126,7 +154,7 @@ def apply(environ: MutableMapping[str, str] = os.environ, cores: int | None = No
     :func:`usable_cores`.  A user's ``XLA_FLAGS`` that XLA would abort on (:func:`problem`)
     is refused with :class:`FlagsError` (the CLI reports it as one line on stderr, exit 2),
     ``environ`` left as it was."""
-    why = problem(environ.get("XLA_FLAGS", ""))
+    why = problem(environ.get("XLA_FLAGS", "")) or refused(environ.get("XLA_FLAGS", ""), environ)
     if why is not None:
         raise FlagsError(why)
     cores = usable_cores() if cores is None else cores
