@@ -598,14 +598,26 @@ def test_a_deeply_nested_manifest_or_tick_record_names_the_file(done, capsys):
 
 
 @pytest.mark.parametrize("fmt", [0, 99, None, True])
-def test_a_manifest_of_another_format_is_refused(done, capsys, fmt):
+def test_a_manifest_of_another_format_is_refused(done, capsys, fmt, tiny_sweep):
     import json
     p = done / "manifest.json"
     man = json.loads(p.read_text())
     man["format"] = fmt
     p.write_text(json.dumps(man))
     line = _one_line_error(*cli(capsys, "report", done)[::2])
-    assert f"'format' is {fmt!r}; this version reads format 1" in line
+    if fmt in (0, 99):      # another version's results: read them with it; never --overwrite
+        which = "a newer" if fmt == 99 else "an older"
+        assert f"results of {which} version of hlip_jax (manifest format {fmt}" in line
+        assert "--overwrite" not in line
+        def files():        # (the run's lock is taken and let go: its time changes)
+            return sorted((q.name, q.stat().st_mtime_ns) for q in done.rglob("*") if q.name != ".lock")
+        before = files()
+        code, _, err = cli(capsys, "run", tiny_sweep, "--out", done, "--resume")
+        assert code == 2 and "Traceback" not in err
+        assert f"results of {which} version" in err and "--overwrite" not in err
+        assert files() == before
+    else:                   # not a format at all: a damaged manifest
+        assert f"'format' is {fmt!r}; this version reads format 1" in line
 
 
 def test_a_stored_value_out_of_range_names_the_manifest(done, capsys):

@@ -198,10 +198,26 @@ def read_manifest(out_dir) -> dict:
     except RecursionError:
         raise StoreError(f"{p}: unreadable manifest: arrays or objects nested too deeply "
                          "(a manifest nests about 4 deep); rerun the sweep with --overwrite") from None
+    other = _other_version(man)
+    if other is not None:
+        raise StoreError(f"{p}: {other}")
     why = _manifest_problem(man)
     if why is not None:
         raise StoreError(f"{p}: damaged manifest: {why}; rerun the sweep with --overwrite")
     return man
+
+
+def _other_version(man) -> str | None:
+    """For a manifest of another version's format (an integer ``format`` other than
+    :data:`MANIFEST_FORMAT`): a message that says so and leaves the results alone (read them
+    with that version, or write this run elsewhere), or None."""
+    fmt = man.get("format") if isinstance(man, dict) else None
+    if isinstance(fmt, bool) or not isinstance(fmt, int) or fmt == MANIFEST_FORMAT:
+        return None
+    which = "a newer" if fmt > MANIFEST_FORMAT else "an older"
+    return (f"results of {which} version of hlip_jax (manifest format {fmt}; this version reads "
+            f"format {MANIFEST_FORMAT}): read them with that version, or give this run another "
+            "--out (nothing here was changed)")
 
 
 #: the largest manifest read [bytes] (1024 scenarios take about 2 MB)
