@@ -62,7 +62,8 @@ SHARDED = textwrap.dedent("""
     jax.config.update("jax_enable_x64", True)
     import numpy as np
     from pathlib import Path
-    from hlip_jax import arrays, execution, progress, trace_cache
+    from hlip_jax.runtime import progress, trace_cache
+    from hlip_jax.simulation import arrays, execution
     from hlip_jax.simulation.config import PathConfig, ScenarioConfig
     trace_cache.enable(Path(sys.argv[1]))
     cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
@@ -154,7 +155,8 @@ DISPATCHED = textwrap.dedent("""
     if len(sys.argv) > 2:                  # process id and coordinator port of a two-process run
         jax.distributed.initialize(f"localhost:{sys.argv[2]}", 2, int(sys.argv[1]))
     import numpy as np
-    from hlip_jax import arrays, execution, progress
+    from hlip_jax.runtime import progress
+    from hlip_jax.simulation import arrays, execution
     from hlip_jax.simulation.config import PathConfig, ScenarioConfig
     cfgs = [ScenarioConfig(duration=3.0, seed=i, path=PathConfig(shape=s, params=dict(peak_speed=v)))
             for i, (s, v) in enumerate([("circle", 0.3), ("line", 0.5), ("square", 0.4)])]
