@@ -255,6 +255,10 @@ def frame_weights(dx, dy, heading, frame_heading):
     return jnp.abs(c * dx + s * dy), jnp.abs(-s * dx + c * dy)
 
 
+class NoWError(ValueError):
+    """coverage.csv holds no W for a group (no disturbance samples on its training side)."""
+
+
 def w_from_coverage(rows, method: str = "box", groups=None):
     """The W box a tube needs, from the rows of a results directory's coverage.csv.
 
@@ -279,6 +283,8 @@ def w_from_coverage(rows, method: str = "box", groups=None):
     frame = frames.pop()
     w = np.full((2, 3), -np.inf)
     for r in rows:
+        if not isinstance(r["state"], str):     # no W at all (NaN cells): the row's note says why
+            raise NoWError(f"group {r['group']!r} has no W ({r.get('note') or 'no samples'})")
         if r["state"] != "[c, p, v]":
             raise ValueError(f"group {r['group']!r}: W is on {r['state']}; the tube needs "
                              "[c, p, v] (gain.with_position = true)")

@@ -451,14 +451,40 @@ def _load(args):
                             duration=args.duration, limit=args.limit, physics=args.physics)
 
 
+def _cache_inside(args, out: Path) -> None:
+    """UserError when the compilation cache this command would use lies inside its results
+    directory ``out`` (the run would refuse the folder it made itself, or later report it as
+    foreign); checked before either is created."""
+    from hlip_jax.runtime import compile_cache
+    if args.no_compile_cache:
+        return
+    given = args.compile_cache is not None
+    if not given and _default_cache_problem() is not None:
+        return
+    cache = Path(args.compile_cache) if given else compile_cache.default_dir()
+    try:
+        c, o = cache.resolve(), out.resolve()
+    except (OSError, RuntimeError):      # a link loop: named where the cache is enabled
+        return
+    if c == o or o in c.parents:
+        what = (f"--compile-cache {cache}" if given else
+                f"HLIP_JAX_CACHE_DIR={cache}" if os.environ.get("HLIP_JAX_CACHE_DIR")
+                else f"the compilation cache {cache}")
+        raise UserError(f"{what} lies inside --out {out}; allowed: a compilation cache directory "
+                        "outside the results directory (or --no-compile-cache)")
+
+
 def cmd_run(args) -> int:
     from hlip_jax.presentation import report
     from hlip_jax.sweepio import runner, store
-    _use_cache(args)               # before anything compiles: JAX reads it at the first compile
-    sw = _load(args)
     if args.out is not None and not args.out.strip():
         raise UserError("--out: an empty path; give a directory (default: results/<sweep name>)")
+    if args.out is not None:
+        _cache_inside(args, Path(args.out))     # before the cache or --out is created
+    _use_cache(args)               # before anything compiles: JAX reads it at the first compile
+    sw = _load(args)
     out = Path(args.out) if args.out is not None else Path("results") / sw.name
+    _cache_inside(args, out)
     try:
         not_dir = out.exists() and not out.is_dir()
     except OSError as err:      # e.g. a name too long for the file system
@@ -721,6 +747,7 @@ def cmd_s2s(args) -> int:
     if args.skip < 0:
         raise UserError(f"--skip: expected an integer >= 0, got {args.skip}")
     log, (chosen,) = _stored_rows(d, [_chosen_scenarios(d, args.scenarios)])
+    _check_skip(log, chosen, args.skip, 5)
     try:
         f = s2s_fit.fit(log, chosen, args.skip)
     except ValueError as err:
@@ -734,6 +761,18 @@ def cmd_s2s(args) -> int:
                   f"  offsets L {f.offset[j, 0, r]:+.3f} R {f.offset[j, 1, r]:+.3f}  residual RMS {f.rms[j, r]:.4f}")
             print(f"{'':<9} {'':<3} H-LIP {A_h[r, 0]:+8.3f} p {A_h[r, 1]:+8.3f} v {B_h[r]:+8.3f} u")
     return EXIT_OK
+
+
+def _check_skip(log, chosen: list[int], skip: int, need: int) -> None:
+    """UserError naming --skip when it leaves fewer than ``need`` step pairs in every chosen
+    run (pairs k, k+1 with k >= skip): the cause is the option, not the scenarios."""
+    from hlip_jax.core import steplog
+    longest = max((int(steplog.alive(log["valid"][s]).sum()) for s in chosen), default=0)
+    if skip and longest - 1 - skip < need:
+        limit = longest - need
+        allowed = f"fewer than {limit}" if limit > 0 else "none (the runs are too short)"
+        raise UserError(f"--skip: {skip} leaves no usable step pairs (the longest chosen run "
+                        f"has {longest} steps); allowed: {allowed}")
 
 
 def cmd_identify(args) -> int:
@@ -752,6 +791,7 @@ def cmd_identify(args) -> int:
             raise UserError("--test: every matching scenario is also fitted on; allowed: "
                             "scenarios outside --scenarios")
     log, (chosen, test) = _stored_rows(d, [chosen, test])
+    _check_skip(log, chosen, args.skip, 1)
     h = store.read_manifest(d)["configs"][int(log["index"][chosen[0]])]["hlip"]
     try:
         model = s2s_model.fit(log, chosen, (h["z0"], h["t_ssp"], h["t_dsp"]), args.skip)
@@ -846,8 +886,14 @@ def cmd_wbox(args) -> int:
     try:
         rows = store.read_coverage(d)
         frame, w, groups = robust.w_from_coverage(rows, args.method, args.group)
+    except store.OtherRunError as err:      # says how to rewrite it
+        raise UserError(str(err)) from None
     except store.StoreError as err:
         raise UserError(f"{err} (write it with: hlip-sweep coverage {d})") from None
+    except robust.NoWError as err:
+        why = _no_samples_why(d)
+        shown = str(err).split(" (")[0] + why if why else str(err)
+        raise UserError(f"{d / store.COVERAGE}: {shown}") from None
     except ValueError as err:
         raise UserError(f"--group/--method: {err}") from None
     w = np.ceil(np.round(w * 1e4, 6)) / 1e4          # up to 1e-4, not past a value on the grid
@@ -859,6 +905,25 @@ def cmd_wbox(args) -> int:
         for j, name in enumerate("cpv"):
             print(f"w_{name}_{i + 1} = {w[i, j]:.4f}")
     return EXIT_OK
+
+
+def _no_samples_why(d: Path) -> str:
+    """Why a run has no disturbance samples, as far as the results tell: the runs' steps
+    against the sweep's warm-up (", ..." text), or "" where the chunks cannot say."""
+    from hlip_jax.core import steplog
+    from hlip_jax.sweepio import store
+    try:
+        warmup = store.analysis_settings(d).warmup
+        valid = store.load_log(d)["valid"]
+    except (store.StoreError, KeyError, OSError):
+        return ""
+    longest = max((int(steplog.alive(v).sum()) for v in valid), default=0)
+    if longest > warmup + 1:        # a sample needs steps k and k + 1 past the warm-up
+        return ""
+    return (f": no disturbance samples after the warm-up (the longest run has {longest} "
+            f"steps, the warm-up is {warmup}; a sample needs two steps past it); run longer"
+            + (f", or rewrite it with `{PROG} coverage {d} --warmup K` with K < {longest - 1}"
+               if longest > 2 else ""))
 
 
 def cmd_ticks(args) -> int:
@@ -1104,6 +1169,22 @@ def cmd_show(args) -> int:
     return EXIT_OK
 
 
+def _check_new_file(p: Path, option: str) -> None:
+    """UserError, before any work, when the file ``p`` (``option``) cannot be written: its
+    folder missing or not writable, or ``p`` a directory."""
+    folder = p.parent
+    if not str(p).strip():
+        raise UserError(f"{option}: an empty path; allowed: a file in an existing, writable folder")
+    if p.is_dir():
+        raise UserError(f"{option} {p}: a directory; allowed: a file in an existing, writable folder")
+    if not folder.is_dir():
+        raise UserError(f"{option} {p}: the folder {folder} does not exist; allowed: a file in "
+                        "an existing, writable folder")
+    if not os.access(folder, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise UserError(f"{option} {p}: not writable; allowed: a file in an existing, writable "
+                        "folder")
+
+
 def cmd_bench(args) -> int:
     if not args.duration > 0:
         raise UserError(f"--duration must be > 0 s, got {args.duration}")
@@ -1120,6 +1201,9 @@ def cmd_bench(args) -> int:
         raise UserError("--qp-kernel: 'fused' needs the inverse linear solve; allowed: xla, or "
                         "fused together with --qp-linsys inverse")
 
+    if args.json:
+        _check_new_file(Path(args.json), "--json")
+
     def write(rows):
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))
@@ -1134,6 +1218,7 @@ def cmd_bench(args) -> int:
 
 def main(argv=None) -> int:
     """Entry point of the ``hlip-sweep`` console script; returns the exit code."""
+    _never_unencodable()
     try:
         import jax  # noqa: F401  (reads its JAX_* switches from the environment when imported)
     except ValueError as err:           # e.g. JAX_ENABLE_X64=maybe
@@ -1204,6 +1289,16 @@ def _after_stop(args) -> str:
     if args.cmd == "run":
         return "; finished chunks are kept: rerun with --resume"
     return f"; run `{PROG} {args.cmd}` again"
+
+
+def _never_unencodable() -> None:
+    """Printing never raises on a character the terminal's encoding lacks (``ü`` in a path
+    under ``PYTHONIOENCODING=ascii``): it is written as an escape (``\\xfc``)."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.reconfigure(errors="backslashreplace")
+        except (AttributeError, ValueError, OSError):   # not a text stream we may change
+            pass
 
 
 def _fail(msg: str, code: int) -> int:

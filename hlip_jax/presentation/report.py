@@ -32,6 +32,7 @@ import base64
 import html
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Sequence
 
@@ -107,7 +108,7 @@ def fig_xy(log, cfg: dict, path: Path, title: str) -> None:
     ax.legend(fontsize=8, loc="upper right")
     ax.grid(alpha=0.3)
     fig.subplots_adjust(left=0.13, right=0.97, bottom=0.1, top=0.93)
-    fig.savefig(path, dpi=DPI)
+    store.save_figure_atomic(fig, path, DPI)
     plt.close(fig)
 
 
@@ -133,7 +134,7 @@ def fig_time(log, path: Path, title: str) -> None:
     axs[0, 0].legend(fontsize=8)
     fig.suptitle(title + " — global position and velocity", fontsize=9)
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.1, top=0.92, wspace=0.25, hspace=0.12)
-    fig.savefig(path, dpi=DPI)
+    store.save_figure_atomic(fig, path, DPI)
     plt.close(fig)
 
 
@@ -159,7 +160,7 @@ def fig_steps(log, path: Path, title: str) -> None:
     axs[1].set_xlabel("t [s]")
     fig.suptitle(title + " — step sizes in the path's heading frame", fontsize=9)
     fig.subplots_adjust(left=0.12, right=0.98, bottom=0.1, top=0.92, hspace=0.1)
-    fig.savefig(path, dpi=DPI)
+    store.save_figure_atomic(fig, path, DPI)
     plt.close(fig)
 
 
@@ -193,7 +194,7 @@ def fig_invariant(an, runs, path: Path, title: str) -> None:
     e = [np.concatenate([r.kept_e(p) for r in runs]) for p in (0, 1)]
     fig = set_figures.plot_planes((an.planes[0].E, an.planes[1].E), e,
                                   title=title + " — error invariant sets E and kept errors e_k")
-    fig.savefig(path, dpi=DPI)
+    store.save_figure_atomic(fig, path, DPI)
     plt.close(fig)
 
 
@@ -333,7 +334,7 @@ def fig_coverage_sets(planes, fitted, path: Path, title: str) -> None:
                  "(orange)",
                  fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
+    store.save_figure_atomic(fig, path, DPI)
     plt.close(fig)
 
 
@@ -355,7 +356,13 @@ def across_run_section(doc, out: Path) -> None:
         store.write_coverage(out)
     doc.h(2, "Coverage over held-out runs")
     doc.p(ACROSS_NOTE)
-    rows = store.read_coverage(out)
+    try:
+        rows = store.read_coverage(out)
+    except store.OtherRunError as err:      # e.g. copied from another run: this run's instead
+        store.write_coverage(out)
+        why = str(err).split("; rewrite it with")[0]
+        print(f"hlip-sweep: note: {why}; rewritten from this run's chunks", file=sys.stderr)
+        rows = store.read_coverage(out)
     if not any(r["level"] == "run" for r in rows):
         doc.p("No group has runs that differ in a held-out field (seed, path or speed): no "
               "held-out statistic. Sweep seeds (the [analysis] table's splits) to get one.")
@@ -469,7 +476,7 @@ def heatmaps(man: dict, rows: list[dict], fig_dir: Path,
         ax.set_title(f"{clabel}\nover {la} × {lb}", fontsize=9)
         fig.tight_layout()  # tick labels of unknown length: worth the cost for 2 figures
         fn = f"heatmap_{name}.png"
-        fig.savefig(fig_dir / fn, dpi=DPI)
+        store.save_figure_atomic(fig, fig_dir / fn, DPI)
         plt.close(fig)
         out.append((f"{clabel} over {la} × {lb}", f"figures/{fn}"))
     return out

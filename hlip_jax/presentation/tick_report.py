@@ -125,7 +125,8 @@ def figure(flat: dict, title: str, path) -> None:
     ax[5].set_xlabel("plant time [s]")
     ax[0].set_title(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    from hlip_jax.sweepio import store
+    store.save_figure_atomic(fig, path, 100)
     plt.close(fig)
 
 

@@ -199,6 +199,23 @@ def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, 
     return old if resume else None
 
 
+def _refuse_changed_file(out: Path, old: dict, configs, files: dict) -> None:
+    """Refuse to resume ``out`` when a data file the configs name (``files``: {path: SHA-256})
+    holds other contents than when the run began (its manifest's ``run_identity``): the
+    chunks to come would be computed with another W or model than those stored."""
+    recorded = (old.get("run_identity") or {}).get("files") or {}
+    if not isinstance(recorded, dict):
+        return
+    fields = sweep_mod.data_files(configs)
+    for path, digest in files.items():
+        before = recorded.get(path)
+        if before is not None and before != digest:
+            raise store.StoreError(
+                f"refusing to resume {out}: {fields[path]} {path} changed since the run "
+                f"(sha256 {digest[:12]} now, {str(before)[:12]} in {store.MANIFEST}); restore "
+                "it, or rerun with --overwrite or another --out")
+
+
 #: what a run and its report write into a results directory, besides the lock
 RUN_FILES = ("chunks", "figures", "ticks", "summary.csv", "coverage.csv", "report.html",
              "report.md", "manifest.json")
@@ -225,7 +242,8 @@ def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_cover
         "sweep_text": sw.text,
         "description": sw.description,
         "analysis": analysis_settings.to_dict(sw.analysis),
-        "axes": [{"fields": list(a.fields), "values": [list(v) for v in a.values],
+        "axes": [{"fields": list(a.fields),
+                  "values": [[sweep_mod.as_written(x) for x in v] for v in a.values],
                   "zipped": a.zipped} for a in sw.axes],
         "paths": list(sw.paths),
         "n_scenarios": len(configs),
@@ -255,11 +273,18 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
     # chunk size, the per-scenario metrics and the precision
     extra = {"batch": batch, "x64": _x64()} if with_coverage else \
         {"batch": batch, "x64": _x64(), "coverage": False}
+    # and the contents of the data files they name (a hull W, an identified model)
+    files = sweep_mod.file_digests(configs)
+    if files:
+        extra["files"] = files
     chash = sweep_mod.config_hash(configs, extra)
+    if resume and old is not None and old.get("config_hash") != chash:
+        _refuse_changed_file(out, old, configs, files)
     old = _check_existing(out, old, resume, overwrite, chash, (batch, n), with_coverage)
     ranges = store.chunk_ranges(n, batch)
     man = dict(old) if old else _new_manifest(sw, configs, batch, len(ranges), chash,
                                               with_coverage)
+    man.setdefault("run_identity", extra)   # what config_hash covers besides the configs
     man["impl"] = resolved._asdict()
     man.update({"versions": store.package_versions(), "jax": store.jax_info(), "git_commit": store.git_commit(),
                 "start_time": man.get("start_time") or store.utc_now(), "end_time": None,

@@ -69,8 +69,8 @@ from hlip_jax.analysis.metrics import SUMMARY_METRICS, push_windows
 from hlip_jax.sweepio import sweep as sweep_mod
 
 __all__ = [
-    "StoreError", "LOG_FIELDS", "SUMMARY_METRICS", "chunk_ranges",
-    "write_atomic", "save_npz_atomic", "read_manifest", "load_chunk", "load_log",
+    "StoreError", "OtherRunError", "LOG_FIELDS", "SUMMARY_METRICS", "chunk_ranges",
+    "write_atomic", "save_npz_atomic", "save_figure_atomic", "read_manifest", "load_chunk", "load_log",
     "write_summary", "read_summary", "chunk_files", "write_coverage",
     "read_coverage", "coverage_rows", "write_coverage_rows", "coverage_sets", "analysis_settings",
     "disturbance_samples", "results_lock", "inside", "chunk_problem", "check_chunks",
@@ -91,6 +91,11 @@ STEP_FIELDS = steplog.STEP_FIELDS      # padded when chunks of different K are c
 
 class StoreError(RuntimeError):
     """A results directory cannot be used as asked (one clear line)."""
+
+
+class OtherRunError(StoreError):
+    """A derived file of a results directory (``coverage.csv``) written by another run, or
+    naming none: the report rewrites it from the run's chunks; other readers refuse it."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -123,6 +128,14 @@ def write_atomic(path, data: bytes | str) -> None:
         except OSError:
             pass
         raise
+
+
+def save_figure_atomic(fig, path, dpi: int) -> None:
+    """``fig.savefig`` written atomically (:func:`write_atomic`): a figure file that is a
+    symbolic link is replaced by the figure, its target never written."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format=Path(path).suffix.lstrip(".") or "png", dpi=dpi)
+    write_atomic(path, buf.getvalue())
 
 
 def save_npz_atomic(path, arrays: dict) -> None:
@@ -204,7 +217,34 @@ def read_manifest(out_dir) -> dict:
     why = _manifest_problem(man)
     if why is not None:
         raise StoreError(f"{p}: damaged manifest: {why}; rerun the sweep with --overwrite")
+    _check_identity(p, man)
     return man
+
+
+#: manifests whose configs were found to match their config_hash: {(path, inode, size,
+#: mtime): True}, so a command that reads the manifest many times hashes it once
+_VERIFIED: dict = {}
+
+
+def _check_identity(p: Path, man: dict) -> None:
+    """StoreError naming the manifest when its configs (with its ``run_identity``: the chunk
+    size, precision, data files' SHA-256) do not give its ``config_hash``: a config edited by
+    hand (a renamed scenario would relabel the stored results).  Manifests written before the
+    ``run_identity`` key are not checked (what their hash covered is not recorded)."""
+    extra, chash = man.get("run_identity"), man.get("config_hash")
+    if not isinstance(extra, dict) or not isinstance(chash, str):
+        return
+    st = p.stat()
+    key = (str(p), st.st_ino, st.st_size, st.st_mtime_ns)
+    if key in _VERIFIED:
+        return
+    if sweep_mod.dicts_hash(man["configs"], extra) != chash:
+        for i in range(len(man["configs"])):        # a value not allowed: named as before
+            stored_config(man["configs"], i, p.parent)
+        raise StoreError(f"{p}: damaged manifest: its configs do not match its config_hash "
+                         "(edited by hand, or of another run?), so the stored results cannot "
+                         "be labelled; rerun the sweep with --overwrite")
+    _VERIFIED[key] = True
 
 
 def _other_version(man) -> str | None:
@@ -872,14 +912,30 @@ def write_coverage(out_dir, settings=None, train_on: tuple | None = None) -> Pat
     return write_coverage_rows(out_dir, coverage_rows(out_dir, settings, train_on))
 
 
+#: the column of coverage.csv naming the run its rows come from (the manifest's config_hash)
+COVERAGE_RUN = "run_id"
+
+
+def _run_id(out_dir) -> str:
+    """The run identity of a results directory as coverage.csv writes it: ``sha256:`` and its
+    manifest's ``config_hash`` (never read as a number); "" where it has no manifest, or one
+    without a run id."""
+    if not os.path.lexists(Path(out_dir) / MANIFEST):
+        return ""
+    run_id = read_manifest(out_dir).get("config_hash")
+    return f"sha256:{run_id}" if isinstance(run_id, str) else ""
+
+
 def write_coverage_rows(out_dir, rows: list[dict]) -> Path:
-    """Write ``rows`` (of :func:`coverage_rows`) as the directory's ``coverage.csv``."""
+    """Write ``rows`` (of :func:`coverage_rows`) as the directory's ``coverage.csv``; each row
+    names the run it comes from (:data:`COVERAGE_RUN`), which :func:`read_coverage` checks."""
     from hlip_jax.analysis import coverage as cov
+    run_id = _run_id(out_dir)
     buf = io.StringIO()
     wr = csv.writer(buf, lineterminator="\n")
-    wr.writerow(cov.COLUMNS)
+    wr.writerow(cov.COLUMNS + (COVERAGE_RUN,))
     for r in rows:
-        wr.writerow([_cell(r[c]) for c in cov.COLUMNS])
+        wr.writerow([_cell(r[c]) for c in cov.COLUMNS] + [run_id])
     p = Path(out_dir) / COVERAGE
     write_atomic(p, buf.getvalue())
     return p
@@ -900,6 +956,17 @@ def read_coverage(out_dir) -> list[dict]:
     if missing:
         raise StoreError(f"{p}: not a coverage table of this version (no column "
                          f"{missing[0]!r}); rewrite it with `hlip-sweep coverage {out_dir}`")
+    run_id = _run_id(out_dir)
+    if run_id and COVERAGE_RUN not in head:
+        raise OtherRunError(f"{p}: names no run (no column {COVERAGE_RUN!r}: written by an older "
+                            f"version, or not by this run); rewrite it with `hlip-sweep coverage "
+                            f"{out_dir}`")
+    other = next((str(r[COVERAGE_RUN]) for r in rows if str(r[COVERAGE_RUN]) != run_id),
+                 None) if run_id else None
+    if other is not None:
+        raise OtherRunError(f"{p}: written by another run (run id {other[7:19] or 'none'}, this "
+                            f"run's {run_id[7:19]}: copied from elsewhere?); rewrite it with "
+                            f"`hlip-sweep coverage {out_dir}`")
     return rows
 
 

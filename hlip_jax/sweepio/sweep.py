@@ -104,7 +104,8 @@ from hlip_jax.core.fields import show_value as _fmt
 
 __all__ = [
     "SweepError", "Axis", "Sweep", "load_sweep", "parse_sweep", "config_to_dict",
-    "config_hash", "path_param_spec", "known_shapes", "MAX_SCENARIOS", "file_slug",
+    "config_hash", "dicts_hash", "as_written", "data_files", "file_digest", "file_digests",
+    "path_param_spec", "known_shapes", "MAX_SCENARIOS", "file_slug",
     "STATIC_FIELDS",
 ]
 
@@ -522,9 +523,9 @@ class Sweep:
             kind = "zip" if a.zipped else "product"
             shown = a.values if len(a) <= 12 else a.values[:8] + a.values[-2:]
             if len(a.fields) == 1:
-                texts = [_fmt(v[0]) for v in shown]
+                texts = [_fmt(as_written(v[0])) for v in shown]
             else:
-                texts = ["(" + ", ".join(_fmt(x) for x in v) + ")" for v in shown]
+                texts = ["(" + ", ".join(_fmt(as_written(x)) for x in v) + ")" for v in shown]
             if len(shown) < len(a):
                 texts[8:8] = [f"... ({len(a) - 10} more)"]
             vals = ", ".join(texts)
@@ -569,7 +570,11 @@ def _resolve_field(field: str, where: str) -> list:
             known = [prefix + k for k in fields] + (["path.<parameter>"] if not prefix else [])
             near = difflib.get_close_matches(prefix + key, known, n=1, cutoff=0.6)
             hint = f"; did you mean {near[0]!r}?" if near else ""
-            raise SweepError(f"{where}.{field!r}: unknown grid field{hint} "
+            if not field.isascii():     # a look-alike letter (Cyrillic а) shown as itself
+                odd = "".join(dict.fromkeys(c for c in field if not c.isascii()))
+                hint = f" (holds {ascii(odd)}, not ASCII){hint}"
+            raise SweepError(f"{where}.{ascii(field) if not field.isascii() else repr(field)}: "
+                             f"unknown grid field{hint} "
                              f"(known here: {', '.join(known)})")
         f = fields[key]
         keys.append(key)
@@ -1120,9 +1125,9 @@ def _scenario_at(e: _PathEntry, axes: tuple[Axis, ...], keymap: dict, point) -> 
                     e.shape, {keys[1]: v}, "grid",
                     lambda k: f"grid.{f!r} (path {e.name!r}, shape {e.shape!r})"))
             else:
-                _set_dotted(raw, keys, v, where)
-            swept[f] = v
-            labels.append(f"{f}={_value_label(v)}")
+                _set_dotted(raw, keys, str.__str__(v) if isinstance(v, str) else v, where)
+            swept[f] = as_written(v)
+            labels.append(f"{f}={_value_label(as_written(v))}")
     sname = e.name + ("/" + ",".join(labels) if labels else "")
     where = f"scenario {sname!r}"
     cfg = _build(C.ScenarioConfig, _with_gait(raw, where), where, exclude=BASE_EXCLUDE)
@@ -1169,13 +1174,32 @@ def _read_sweep_file(p: Path, source: str) -> str:
 FILE_FIELDS = ("mpc.w_hull_file", "s2s.file")
 
 
-def _anchored(value, base: Path):
+class _Anchored(str):
+    """A file path of a grid axis joined to its sweep file's directory, which remembers the
+    value as written (``written``): a scenario's name, seed and swept value take that, so
+    they do not depend on where the sweep's folder lies."""
+    written: str
+
+    def __new__(cls, path: str, written: str):
+        obj = super().__new__(cls, path)
+        obj.written = written
+        return obj
+
+
+def as_written(v):
+    """A grid value as the sweep file wrote it (a file path before it was joined to the
+    file's directory); any other value as it is."""
+    return str.__str__(v.written) if isinstance(v, _Anchored) else v
+
+
+def _anchored(value, base: Path, remember: bool = False):
     """``value`` (a path string, or a list of them) with relative paths joined to ``base``;
-    anything else as it is (its type is checked where the field is validated)."""
+    anything else as it is (its type is checked where the field is validated).  ``remember``
+    (grid axes): the joined path keeps the value as written (:class:`_Anchored`)."""
     if isinstance(value, list):
-        return [_anchored(v, base) for v in value]
+        return [_anchored(v, base, remember) for v in value]
     if isinstance(value, str) and value and not Path(value).is_absolute():
-        return str(base / value)
+        return _Anchored(str(base / value), value) if remember else str(base / value)
     return value
 
 
@@ -1193,7 +1217,7 @@ def _anchor_files(doc: dict, base: Path) -> None:
         grid = doc.get("grid") if isinstance(doc.get("grid"), dict) else {}
         for axes in [grid.get("product")] + list(_as_list(grid.get("zip"))):
             if isinstance(axes, dict) and field in axes:
-                axes[field] = _anchored(axes[field], base)
+                axes[field] = _anchored(axes[field], base, remember=True)
 
 
 def _point_key(row) -> str:
@@ -1279,6 +1303,45 @@ def _with_impl_table(raw: dict) -> dict:
 
 def config_hash(configs, extra: dict | None = None) -> str:
     """SHA-256 of the canonical JSON of the expanded configs (and ``extra``, e.g. the chunk size)."""
-    payload = {"configs": [config_to_dict(c) for c in configs], "extra": extra or {}}
+    return dicts_hash([config_to_dict(c) for c in configs], extra)
+
+
+def dicts_hash(config_dicts: list, extra: dict | None = None) -> str:
+    """:func:`config_hash` of configs already as dicts (a manifest's ``configs``)."""
+    payload = {"configs": config_dicts, "extra": extra or {}}
     s = json.dumps(payload, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(s.encode()).hexdigest()
+
+
+def data_files(configs) -> dict[str, str]:
+    """{path: field} of every data file (:data:`FILE_FIELDS`) the configs name, in order."""
+    out: dict[str, str] = {}
+    for c in configs:
+        for field in FILE_FIELDS:
+            section, name = field.split(".")
+            path = getattr(getattr(c, section), name)
+            if path:
+                out.setdefault(path, field)
+    return out
+
+
+def file_digest(path: str) -> str:
+    """SHA-256 of a data file's bytes (OSError if it cannot be read)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def file_digests(configs) -> dict[str, str]:
+    """{path: SHA-256} of every data file the configs name (part of a run's identity: a W
+    or model file edited between a run and its ``--resume`` is another run)."""
+    out = {}
+    for path, field in data_files(configs).items():
+        try:
+            out[path] = file_digest(path)
+        except OSError as err:
+            raise SweepError(f"{field}: {_short(path, 200)}: cannot read it: "
+                             f"{err.strerror or err}") from None
+    return out
