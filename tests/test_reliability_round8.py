@@ -82,6 +82,8 @@ def test_a_data_file_edited_before_resume_is_refused(tmp_path, capsys, fake_loop
     line = _one_line_error(*cli(capsys, "run", sw, "--out", out, "--resume", "--quiet")[::2])
     assert f"mpc.w_hull_file {hull} changed since the run" in line and "manifest.json" in line
     assert sorted(p.read_bytes() for p in (out / "chunks").iterdir()) == chunks
+    code, _, err = cli(capsys, "report", out)       # the stored results, with a note
+    assert f"note: {hull} changed since the run" in err, err
     (tmp_path / "s" / "w.csv").write_text("plane,c,p,v\n" + HULL)       # restored: resumes
     _run_ok(capsys, sw, out, "--resume")
 

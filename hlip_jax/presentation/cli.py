@@ -586,12 +586,29 @@ def cmd_report(args) -> int:
     from hlip_jax.sweepio import store
     d = _results_dir(args.dir)
     store.check_chunks(d)           # a truncated or altered chunk is named before any figure
+    _note_changed_files(d)
     from hlip_jax.sweepio import runner
     with runner.on_host():
         html, md = report.write_report(d, heatmap_axes=args.heatmap)
     print(f"report: {html}")
     print(f"        {md}")
     return EXIT_OK
+
+
+def _note_changed_files(d: Path) -> None:
+    """A note for each data file of the run (a hull W, a model) whose contents changed since
+    the run: the report shows the stored results, made with the file as it was."""
+    from hlip_jax.sweepio import store, sweep
+    files = (store.read_manifest(d).get("run_identity") or {}).get("files") or {}
+    for path, digest in (files.items() if isinstance(files, dict) else ()):
+        try:
+            now = sweep.file_digest(path)
+        except OSError:
+            continue                 # deleted or moved: nothing the report reads
+        if now != digest:
+            print(f"{PROG}: note: {path} changed since the run (sha256 {now[:12]} now, "
+                  f"{str(digest)[:12]} in {store.MANIFEST}); the report shows the results "
+                  "made with it as it was", file=sys.stderr)
 
 
 def _train_on(text: str | None):
