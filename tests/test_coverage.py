@@ -83,7 +83,7 @@ def test_coverage_csv_schema_and_counts(hlip_run):
     step row the kept test errors, which on the unpushed line is summary.csv's step count minus
     the warm-up of 4 (an independent count); each interval contains its estimate."""
     head, rows = _csv(hlip_run)
-    assert tuple(head) == cov.COLUMNS
+    assert tuple(head) == cov.COLUMNS + (store.COVERAGE_RUN,)    # the run it comes from, last
     man = store.read_manifest(hlip_run)
     steps = {r["index"]: r["steps"] for r in store.read_summary(hlip_run)}
     # the two paths share the gain: the path split pools them; the speed is not varied
