@@ -221,3 +221,15 @@ def test_bench_checks_its_json_destination_first(tmp_path, capsys, monkeypatch):
     assert f"--json {target}: the folder {target.parent} does not exist" in line
     line = _one_line_error(*cli(capsys, "bench", "--json", tmp_path)[::2])
     assert "a directory" in line
+
+
+def test_a_keep_out_disc_over_the_start_is_refused():
+    """A13: an obstacle whose radius misses the path's start but whose radius + margin (the
+    disc the MPC keeps the COM out of) covers it is refused, naming the obstacle and the margin
+    (it ran with status qp_failed before); the same disc with a smaller margin is accepted."""
+    text = ('name = "a13"\n[base]\nplant = "hlip"\nduration = 2.0\n[[paths]]\nshape = "line"\n'
+            '[[paths.overrides.obstacles]]\nx = 0.0\ny = 0.5\nradius = 0.3\nmargin = {m}\n')
+    with pytest.raises(sweep.SweepError) as err:
+        sweep.parse_sweep(text.format(m=0.3))
+    assert "obstacles.0" in str(err.value) and "margin 0.3 m" in str(err.value)
+    assert len(sweep.parse_sweep(text.format(m=0.1)).scenarios) == 1

@@ -455,16 +455,18 @@ def _path_start(shape: str, params_json: str) -> tuple[float, float]:
 
 
 def _check_start_clear(cfg: C.ScenarioConfig, where: str) -> None:
-    """No obstacle disc may cover the path's start: the robot would begin inside it (negative
-    clearance from the first step)."""
+    """No obstacle's keep-out disc (radius + margin, what the MPC keeps the COM out of) may
+    cover the path's start: the robot would begin inside it (negative clearance from the first
+    step, or a plan with no feasible step)."""
     sx, sy = _path_start(cfg.path.shape, json.dumps(cfg.path.params, sort_keys=True))
     for i, o in enumerate(cfg.obstacles):
         d = math.hypot(o.x - sx, o.y - sy)
-        if d < o.radius:
+        if d < o.radius + o.margin:
             raise SweepError(f"{where}: obstacles.{i}: the disc at ({o.x:g}, {o.y:g}) with radius "
-                             f"{o.radius:g} m covers the path's start ({sx:g}, {sy:g}), where the "
-                             f"robot stands at t = 0 (distance {d:.3g} m); allowed: radius < "
-                             f"{d:.3g} m or the centre further from the start")
+                             f"{o.radius:g} m + margin {o.margin:g} m covers the path's start "
+                             f"({sx:g}, {sy:g}), where the robot stands at t = 0 (distance "
+                             f"{d:.3g} m); allowed: radius + margin < {d:.3g} m or the centre "
+                             "further from the start")
 
 
 # --------------------------------------------------------------------------------------------
