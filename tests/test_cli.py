@@ -534,13 +534,17 @@ def test_two_concurrent_runs_the_second_exits_2(tmp_path, tiny_sweep, capsys, fa
     assert json.loads((out / "manifest.json").read_text())["status"] == "complete"
 
 
-def test_sigterm_leaves_an_incomplete_run_to_resume(tmp_path, tiny_sweep):
+@pytest.mark.parametrize("sig, code", [("SIGTERM", 143), ("SIGHUP", 129)])
+def test_sigterm_leaves_an_incomplete_run_to_resume(tmp_path, tiny_sweep, sig, code):
+    """SIGTERM, and SIGHUP (the terminal closed; round 8, D10: it ended a run without a word),
+    end a run with one line naming the signal and how to resume, exit 128 + the signal."""
     import signal
     out = tmp_path / "o"
     proc = _slow_run(tiny_sweep, out)
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(getattr(signal, sig))
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 143 and "SIGTERM" in err and "Traceback" not in err, err
+    assert proc.returncode == code and sig in err and "Traceback" not in err, err
+    assert "--resume" in err
     assert json.loads((out / "manifest.json").read_text())["status"] == "incomplete"
 
 

@@ -48,7 +48,7 @@ from pathlib import Path
 from hlip_jax import plants
 from hlip_jax.runtime import resources, xla_flags
 
-EXIT_OK, EXIT_INCOMPLETE, EXIT_USAGE, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
+EXIT_OK, EXIT_INCOMPLETE, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: scenarios a run takes without --max-scenarios (a 1024-robot GPU chunk 64 times over)
 MAX_RUN_SCENARIOS = 65_536
 PROG = "hlip-sweep"
@@ -59,27 +59,37 @@ class UserError(Exception):
 
 
 class Terminated(BaseException):
-    """SIGTERM arrived: unwinds like Ctrl-C (a BaseException, so no ``except Exception`` stops
-    it), leaving finished chunks and an "incomplete" manifest."""
+    """SIGTERM or SIGHUP (the terminal closed) arrived: unwinds like Ctrl-C (a BaseException,
+    so no ``except Exception`` stops it), leaving finished chunks and an "incomplete" manifest.
+    ``signum``: the signal's number."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+#: the signals that end a run as :class:`Terminated` (exit 128 + the signal's number)
+ENDING_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 
 
 def _raise_terminated(signum, frame):
-    raise Terminated()
+    raise Terminated(signum)
 
 
 @contextlib.contextmanager
 def _sigterm_unwinds():
-    """Within the block, SIGTERM raises :class:`Terminated` (in the main thread only; elsewhere
-    the default action stays)."""
+    """Within the block, each of :data:`ENDING_SIGNALS` raises :class:`Terminated` (in the main
+    thread only; elsewhere the default actions stay)."""
     try:
-        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+        previous = {s: signal.signal(s, _raise_terminated) for s in ENDING_SIGNALS}
     except ValueError:          # not the main thread
         yield
         return
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def shipped_dir() -> Path:
@@ -1271,9 +1281,10 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"\n{PROG}: interrupted{_after_stop(args)}", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except Terminated:
-        print(f"{PROG}: terminated (SIGTERM){_after_stop(args)}", file=sys.stderr)
-        return EXIT_TERMINATED
+    except Terminated as stop:
+        name = signal.Signals(stop.signum).name
+        print(f"{PROG}: terminated ({name}){_after_stop(args)}", file=sys.stderr)
+        return 128 + stop.signum
 
 
 #: values of MUJOCO_GL that MuJoCo reads without raising when it is imported (on Linux)
