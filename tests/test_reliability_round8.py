@@ -233,3 +233,15 @@ def test_a_keep_out_disc_over_the_start_is_refused():
         sweep.parse_sweep(text.format(m=0.3))
     assert "obstacles.0" in str(err.value) and "margin 0.3 m" in str(err.value)
     assert len(sweep.parse_sweep(text.format(m=0.1)).scenarios) == 1
+
+
+def test_identify_checks_its_output_folder_before_fitting(done, capsys, monkeypatch):
+    """B09: `identify -o MISSING/m.npz` fitted first and failed writing; the folder is now
+    checked before any work (the fit is replaced by one that fails if called)."""
+    from hlip_jax.core import s2s_model
+
+    def no_fit(*a, **k):
+        raise AssertionError("the fit ran")
+    monkeypatch.setattr(s2s_model, "fit", no_fit)
+    line = _one_line_error(*cli(capsys, "identify", done, "-o", done.parent / "no" / "m.npz")[::2])
+    assert "-o" in line and "does not exist" in line

@@ -810,6 +810,7 @@ def cmd_identify(args) -> int:
         raise UserError(f"--skip: expected an integer >= 0, got {args.skip}")
     if out.suffix != ".npz" or out.exists():
         raise UserError(f"-o: {out}: allowed: a new file ending in .npz (nothing is overwritten)")
+    _check_new_file(out, "-o")          # before the fit: its folder exists and takes files
     chosen = _chosen_scenarios(d, args.scenarios)
     test = [] if args.test is None else _chosen_scenarios(d, args.test)
     if set(test) & set(chosen):
