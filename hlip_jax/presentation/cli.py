@@ -381,6 +381,23 @@ def build_parser() -> argparse.ArgumentParser:
     _ticks_parser(sub)
     _render_parser(sub)
 
+    _model_parsers(sub)
+
+    sub.add_parser("list", help="list the shipped sweeps", description="List sweeps/*.toml.")
+
+    s = sub.add_parser("show", help="expand a sweep and print its grid",
+                       description="Validate SWEEP and print its paths, axes and scenario count.")
+    s.add_argument("sweep", metavar="SWEEP")
+    _sweep_overrides(s)
+    s.add_argument("--scenarios", action="store_true", help="also list every scenario name")
+
+    _bench_parser(sub)
+    return ap
+
+
+def _model_parsers(sub) -> None:
+    """The commands that fit models and measured W from a results directory: s2s, identify,
+    wbox, whull."""
     fs = sub.add_parser("s2s", help="fit the robot's step-to-step map from a results directory",
                         description="Least-squares S2S map [p, v]+ = A [p, v] + B u + c(stance) "
                         "per plane of the heading frame, from the step logs of DIR, beside the "
@@ -429,17 +446,6 @@ def build_parser() -> argparse.ArgumentParser:
     wh.add_argument("--out", required=True, metavar="FILE", help="the CSV file to write")
     wh.add_argument("--scenarios", metavar="REGEX", default="",
                     help="only scenarios whose name matches REGEX (Python re.search)")
-
-    sub.add_parser("list", help="list the shipped sweeps", description="List sweeps/*.toml.")
-
-    s = sub.add_parser("show", help="expand a sweep and print its grid",
-                       description="Validate SWEEP and print its paths, axes and scenario count.")
-    s.add_argument("sweep", metavar="SWEEP")
-    _sweep_overrides(s)
-    s.add_argument("--scenarios", action="store_true", help="also list every scenario name")
-
-    _bench_parser(sub)
-    return ap
 
 
 def _simulate_override():
