@@ -190,13 +190,29 @@ def _check_existing(out: Path, old: dict | None, resume: bool, overwrite: bool, 
                else f"the scenario count differs (manifest {old.get('n_scenarios')}, now {n}: "
                "give the --limit of the interrupted run, or none)"
                if old.get("n_scenarios") != n
-               else "the expanded sweep config differs")
+               else _numerics_change(old) or "the expanded sweep config differs")
         raise store.StoreError(f"refusing to resume {out}: {why}; config hash {chash[:12]} vs "
                          f"{str(old.get('config_hash'))[:12]} in {store.MANIFEST}")
     if old is not None and overwrite and not resume:
         _discard_run(out)
         return None
     return old if resume else None
+
+
+def _numerics_change(old: dict) -> str | None:
+    """Which process setting that changes the numbers (:func:`numerics`) differs from the
+    interrupted run's, named by its environment variable; None when they agree or the run
+    did not record them."""
+    before = (old.get("run_identity") or {}).get("numerics")
+    now = numerics()
+    if not isinstance(before, dict) or before == now:
+        return None
+    if before.get("xla_flags") != now["xla_flags"]:
+        return (f"XLA_FLAGS differs (the run's {' '.join(before.get('xla_flags') or []) or 'none'}"
+                f", now {' '.join(now['xla_flags']) or 'none'}; it changes the numbers)")
+    return (f"JAX's random numbers differ (JAX_DEFAULT_PRNG_IMPL {before.get('prng')}, now "
+            f"{now['prng']}; jax_threefry_partitionable {before.get('threefry_partitionable')}, "
+            f"now {now['threefry_partitionable']})")
 
 
 def _refuse_changed_file(out: Path, old: dict, configs, files: dict) -> None:
@@ -233,6 +249,30 @@ def _discard_run(out: Path) -> None:
             shutil.rmtree(p)
 
 
+def sweep_layout(sw) -> dict:
+    """The sweep's grid axes (values as written) and path names: how the report groups and
+    labels the results (the manifest's ``axes`` and ``paths``)."""
+    return {"axes": [{"fields": list(a.fields),
+                      "values": [[sweep_mod.as_written(x) for x in v] for v in a.values],
+                      "zipped": a.zipped} for a in sw.axes],
+            "paths": list(sw.paths)}
+
+
+def numerics() -> dict:
+    """The process's settings besides the configs that change a chunk's numbers: the user's
+    XLA flags (``XLA_FLAGS`` but the CPU device count the CLI sets per machine, e.g.
+    ``--xla_cpu_enable_fast_math``) and JAX's random-number implementation
+    (``JAX_DEFAULT_PRNG_IMPL``, ``jax_threefry_partitionable``)."""
+    import jax
+
+    from hlip_jax.runtime import xla_flags
+    flags = sorted(f for f in os.environ.get("XLA_FLAGS", "").split()
+                   if f.partition("=")[0] != xla_flags.DEVICES_FLAG)
+    return {"xla_flags": flags, "prng": str(jax.config.jax_default_prng_impl),
+            "threefry_partitionable": bool(getattr(jax.config, "jax_threefry_partitionable",
+                                                   False))}
+
+
 def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_coverage: bool) -> dict:
     """The manifest of a fresh run (before the environment and status fields)."""
     return {
@@ -242,10 +282,7 @@ def _new_manifest(sw, configs, batch: int, n_chunks: int, chash: str, with_cover
         "sweep_text": sw.text,
         "description": sw.description,
         "analysis": analysis_settings.to_dict(sw.analysis),
-        "axes": [{"fields": list(a.fields),
-                  "values": [[sweep_mod.as_written(x) for x in v] for v in a.values],
-                  "zipped": a.zipped} for a in sw.axes],
-        "paths": list(sw.paths),
+        **sweep_layout(sw),
         "n_scenarios": len(configs),
         "total_before_limit": sw.total,
         "batch": batch,
@@ -270,9 +307,10 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
         raise store.StoreError(f"--batch: expected an integer >= 1, got {batch!r}")
     batch = min(batch, n)
     # everything that changes a chunk's numbers is in the run's identity: the configs, the
-    # chunk size, the per-scenario metrics and the precision
-    extra = {"batch": batch, "x64": _x64()} if with_coverage else \
-        {"batch": batch, "x64": _x64(), "coverage": False}
+    # chunk size, the per-scenario metrics, the precision and the process's numerics; and the
+    # sweep's axes and paths, which label the results in the report
+    extra = store.legacy_identity(batch, _x64(), with_coverage)
+    extra.update(numerics=numerics(), layout=store.layout_digest(sweep_layout(sw)))
     # and the contents of the data files they name (a hull W, an identified model)
     files = sweep_mod.file_digests(configs)
     if files:

@@ -48,6 +48,7 @@ import csv
 import datetime as _dt
 import fcntl
 import io
+import hashlib
 import json
 import math
 import os
@@ -226,14 +227,39 @@ def read_manifest(out_dir) -> dict:
 _VERIFIED: dict = {}
 
 
+def legacy_identity(batch: int, x64, with_coverage: bool) -> dict:
+    """What a run's ``config_hash`` covers besides its configs, as every run records it: the
+    chunk size, the precision and, when off, the per-scenario coverage; the whole of it for
+    runs written before the manifest's ``run_identity`` (which adds the numerics, the layout
+    and data files' SHA-256)."""
+    return ({"batch": batch, "x64": x64} if with_coverage else
+            {"batch": batch, "x64": x64, "coverage": False})
+
+
+def layout_digest(layout: dict) -> str:
+    """SHA-256 of a run's ``axes`` and ``paths`` (a manifest, or the sweep's layout): how the
+    report groups and labels its results."""
+    payload = {"axes": layout.get("axes"), "paths": layout.get("paths")}
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, separators=(",", ":"))
+                          .encode()).hexdigest()
+
+
 def _check_identity(p: Path, man: dict) -> None:
     """StoreError naming the manifest when its configs (with its ``run_identity``: the chunk
     size, precision, data files' SHA-256) do not give its ``config_hash``: a config edited by
-    hand (a renamed scenario would relabel the stored results).  Manifests written before the
-    ``run_identity`` key are not checked (what their hash covered is not recorded)."""
+    hand (a renamed scenario would relabel the stored results); and its ``axes`` and ``paths``
+    against the layout digest the identity records.  A manifest without ``run_identity``
+    (written before it, or with it removed) is checked against :func:`legacy_identity`."""
     extra, chash = man.get("run_identity"), man.get("config_hash")
-    if not isinstance(extra, dict) or not isinstance(chash, str):
+    if not isinstance(chash, str):
         return
+    if not isinstance(extra, dict):         # written before run_identity (or it was removed)
+        extra = legacy_identity(man["batch"], man.get("x64"), man.get("with_coverage", True))
+    layout = extra.get("layout")
+    if layout is not None and layout != layout_digest(man):
+        raise StoreError(f"{p}: damaged manifest: its axes or paths do not match the run's "
+                         "(edited by hand?), so the report would group and label the results "
+                         "wrongly; rerun the sweep with --overwrite")
     st = p.stat()
     key = (str(p), st.st_ino, st.st_size, st.st_mtime_ns)
     if key in _VERIFIED:
