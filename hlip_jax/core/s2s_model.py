@@ -29,6 +29,7 @@ The file (``.npz``) holds ``A`` (2, 2), ``B`` (2,), ``offset`` (2 planes, 2 stan
 
 from __future__ import annotations
 
+import io
 import zipfile
 from pathlib import Path
 from typing import NamedTuple, Sequence
@@ -87,13 +88,19 @@ def lifted(model: Model) -> tuple[np.ndarray, np.ndarray]:
     return A3, np.array([1.0 + B[0], *B])
 
 
+def to_bytes(model: Model) -> bytes:
+    """The bytes of ``model``'s .npz file (for a caller that writes them atomically)."""
+    buf = io.BytesIO()
+    np.savez(buf, A=model.A, B=model.B, offset=model.offset, rms=model.rms,
+             n=np.int64(model.n), rank=np.int64(model.rank),
+             cadence=np.asarray(model.cadence, np.float64))
+    return buf.getvalue()
+
+
 def write(path, model: Model) -> Path:
     """Write ``model`` to ``path`` (.npz); returns the path."""
     path = Path(path)
-    with open(path, "wb") as f:
-        np.savez(f, A=model.A, B=model.B, offset=model.offset, rms=model.rms,
-                 n=np.int64(model.n), rank=np.int64(model.rank),
-                 cadence=np.asarray(model.cadence, np.float64))
+    path.write_bytes(to_bytes(model))
     return path
 
 

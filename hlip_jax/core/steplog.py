@@ -6,10 +6,28 @@ Axes: S scenarios, K logged steps (k = 0 … K−1), planes (sagittal world x, l
 and the H-LIP state [c, p, v] of one plane: c the global COM position [m], p the COM relative
 to the stance foot [m], v the COM velocity [m/s].
 
-:class:`Log` fields, ``name: meaning [unit] (shape) dtype`` (dtype float64 where none is
-given); :func:`zeros` reads the shapes and dtypes from this list, so a field is defined here
-and in :class:`Log` and nowhere else:
+:class:`Log` fields are listed in :data:`FIELD_DOC`, ``name: meaning [unit] (shape) dtype``
+(dtype float64 where none is given); :func:`zeros` reads the shapes and dtypes from that list
+(a constant, not this docstring, which ``python -OO`` removes), so a field is defined there
+and in :class:`Log` and nowhere else.
+"""
 
+from __future__ import annotations
+
+import re
+from typing import NamedTuple
+
+import numpy as np
+
+STATUS_OK, STATUS_FELL, STATUS_NONFINITE, STATUS_QP_FAILED = 0, 1, 2, 3
+#: status code → the name the results directory uses
+STATUS_NAMES = {STATUS_OK: "ok", STATUS_FELL: "fell", STATUS_NONFINITE: "nonfinite",
+                STATUS_QP_FAILED: "qp_failed"}
+
+
+#: the fields of :class:`Log`, ``name: meaning [unit] (shape) dtype`` (float64 where none is
+#: given), one entry per field (an entry may run over several lines)
+FIELD_DOC = """
     t: the planner's clock at SSP⁻_k, k T with T = T_SSP + T_DSP [s] (S, K)
     t_plant: the plant's own clock at SSP⁻_k (a Cassie step ends at its detected touchdown,
       so its steps need not last T) [s] (S, K)
@@ -46,21 +64,9 @@ and in :class:`Log` and nowhere else:
       then with the robot's executed step too; :func:`hlip_jax.core.invariant.closed_loop`) (S, 3)
 """
 
-from __future__ import annotations
-
-import re
-from typing import NamedTuple
-
-import numpy as np
-
-STATUS_OK, STATUS_FELL, STATUS_NONFINITE, STATUS_QP_FAILED = 0, 1, 2, 3
-#: status code → the name the results directory uses
-STATUS_NAMES = {STATUS_OK: "ok", STATUS_FELL: "fell", STATUS_NONFINITE: "nonfinite",
-                STATUS_QP_FAILED: "qp_failed"}
-
 
 class Log(NamedTuple):
-    """Per-step record of a batch of closed loops; fields in the module doc."""
+    """Per-step record of a batch of closed loops; fields in :data:`FIELD_DOC`."""
     t: np.ndarray
     t_plant: np.ndarray
     stance: np.ndarray
@@ -94,8 +100,9 @@ FIELDS = Log._fields
 
 def _documented_layout() -> dict[str, tuple[tuple, str]]:
     """{field: (shape with "S" and "K" for the scenario and step axes, dtype)} parsed from the
-    module doc's ``name: ... (shape) dtype`` entries (an entry may run over several lines)."""
-    entries = re.split(r"\n    (?=\w+: )", __doc__.split("``name: meaning", 1)[1])[1:]
+    :data:`FIELD_DOC`'s ``name: ... (shape) dtype`` entries (an entry may run over several
+    lines)."""
+    entries = re.split(r"\n    (?=\w+: )", "\n" + FIELD_DOC)[1:]
     out = {}
     for e in entries:
         name = e.split(":", 1)[0]
@@ -105,7 +112,7 @@ def _documented_layout() -> dict[str, tuple[tuple, str]]:
     return out
 
 
-#: field → (documented shape, dtype), from the module doc (:func:`_documented_layout`)
+#: field → (documented shape, dtype), from :data:`FIELD_DOC` (:func:`_documented_layout`)
 LAYOUT = _documented_layout()
 #: the fields with a step axis (axis 1), padded when chunks of different K are joined
 STEP_FIELDS = tuple(f for f in FIELDS if LAYOUT[f][0][1:2] == ("K",))

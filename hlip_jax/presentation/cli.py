@@ -280,7 +280,9 @@ def _stored_scenario_arguments(parser, alone_note: str) -> None:
     """DIR SCENARIO [--alone]: one stored scenario, replayed within its chunk or alone
     (``ticks``, ``render``; :func:`_stored_scenario`)."""
     parser.add_argument("dir", metavar="DIR")
-    parser.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario")
+    parser.add_argument("scenario", metavar="SCENARIO", help="index or name of the scenario; "
+                        "where an index is also another scenario's name (a scenario named "
+                        "'0'), choose with index:N or name:NAME")
     parser.add_argument("--alone", action="store_true",
                         help="replay the scenario as a batch of one instead of within its "
                         "chunk " + alone_note)
@@ -452,11 +454,29 @@ def _simulate_override():
     spec = os.environ.get("HLIP_SWEEP_SIMULATE")
     if not spec:
         return None
-    mod, _, fn = spec.partition(":")
+    mod, sep, fn = spec.partition(":")
+    allowed = "allowed: module:function, a function configs -> step log (the tests' fake loop)"
+    if not (sep and mod and fn):
+        raise UserError(f"HLIP_SWEEP_SIMULATE={spec}: {allowed}")
     try:
-        return getattr(importlib.import_module(mod), fn)
-    except (ImportError, AttributeError) as err:
+        func = getattr(importlib.import_module(mod), fn)
+    except (ImportError, AttributeError, ValueError) as err:
         raise UserError(f"HLIP_SWEEP_SIMULATE={spec}: cannot load it: {err}") from None
+    if not callable(func):
+        raise UserError(f"HLIP_SWEEP_SIMULATE={spec}: not a function; {allowed}")
+
+    def simulate(configs, *rest, **kw):
+        try:
+            log = func(configs, *rest, **kw)
+        except TypeError as err:
+            raise UserError(f"HLIP_SWEEP_SIMULATE={spec}: the call failed: {err}; "
+                            f"{allowed}") from None
+        if not (isinstance(log, dict) or hasattr(log, "_asdict")):
+            raise UserError(f"HLIP_SWEEP_SIMULATE={spec}: returned a value of type "
+                            f"{type(log).__name__}, not a step log; {allowed}")
+        return log
+
+    return simulate
 
 
 def _load(args):
@@ -490,6 +510,23 @@ def _cache_inside(args, out: Path) -> None:
                         "outside the results directory (or --no-compile-cache)")
 
 
+def _check_lock_file(out: Path) -> None:
+    """UserError naming ``out/.lock`` when it is there but not a regular file (a stray
+    ``mkdir``): the run could not take its lock.  A link is refused by the store itself."""
+    import stat
+
+    from hlip_jax.sweepio import store
+    lock = out / store.LOCK
+    try:
+        mode = os.lstat(lock).st_mode
+    except OSError:         # absent (or unreadable: the store names it)
+        return
+    if not stat.S_ISREG(mode) and not stat.S_ISLNK(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "not a regular file"
+        raise UserError(f"--out {out}: {lock} is {kind}, not the run's lock file; remove it "
+                        f"if no run is writing {out}")
+
+
 def cmd_run(args) -> int:
     from hlip_jax.presentation import report
     from hlip_jax.sweepio import runner, store
@@ -500,6 +537,8 @@ def cmd_run(args) -> int:
     _use_cache(args)               # before anything compiles: JAX reads it at the first compile
     sw = _load(args)
     out = Path(args.out) if args.out is not None else Path("results") / sw.name
+    if ".." in out.parts:       # lnk/../o: one real folder for every write (not cwd/o)
+        out = Path(os.path.realpath(out))
     _cache_inside(args, out)
     try:
         not_dir = out.exists() and not out.is_dir()
@@ -513,6 +552,7 @@ def cmd_run(args) -> int:
                         "or a new path")
     if args.resume and args.overwrite:
         raise UserError("--resume and --overwrite exclude each other")
+    _check_lock_file(out)
     if sw.n_scenarios > args.max_scenarios:
         raise UserError(f"{sw.name}: {sw.n_scenarios} scenarios; allowed: at most "
                         f"{args.max_scenarios} per run (--max-scenarios N raises the limit; "
@@ -835,7 +875,7 @@ def cmd_identify(args) -> int:
     _print_model(model, log["A"][chosen[0]], log["B"][chosen[0]])
     if test:
         _print_heldout(log, test, model, args.skip)
-    s2s_model.write(out, model)
+    store.write_atomic(out, s2s_model.to_bytes(model))     # a link at -o is replaced
     print(f"model: {out}  (s2s.model = \"identified\", s2s.file = \"{out.resolve()}\")")
     return EXIT_OK
 
@@ -877,6 +917,7 @@ def _print_heldout(log, test, model, skip: int) -> None:
 
 def cmd_whull(args) -> int:
     import csv
+    import io
 
     from hlip_jax.core import robust
     from hlip_jax.sweepio import store
@@ -892,12 +933,12 @@ def cmd_whull(args) -> int:
         raise UserError("the runs' W is on [p, v]; the tube needs [c, p, v] "
                         "(gain.with_position = true)")
     verts = [robust.symmetric_hull_vertices(S) for S in samples]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with open(out, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(robust.HULL_COLUMNS)
-        for i, V in enumerate(verts):
-            w.writerows([i + 1, *(f"{x:.9g}" for x in v)] for v in V)
+    text = io.StringIO(newline="")
+    w = csv.writer(text)
+    w.writerow(robust.HULL_COLUMNS)
+    for i, V in enumerate(verts):
+        w.writerows([i + 1, *(f"{x:.9g}" for x in v)] for v in V)
+    store.write_atomic(out, text.getvalue())       # a link at --out is replaced, not followed
     print(f"# W of {d}: the symmetric convex hull of {len(samples[0])} disturbance samples "
           f"per plane from {runs} runs (pushes' steps left out); "
           f"{len(verts[0])} and {len(verts[1])} vertex pairs in {out}")
@@ -1004,15 +1045,34 @@ def _stored_scenario(args) -> tuple[Path, dict, int]:
 
 
 def _scenario_index(d: Path, man: dict, text: str) -> int:
-    """The index of scenario ``text`` (a name or an index) of results directory ``d`` with
-    manifest ``man``; UserError listing what is allowed otherwise."""
+    """The index of scenario ``text`` of results directory ``d`` with manifest ``man``: a name,
+    an index, ``name:NAME`` or ``index:N``; UserError listing what is allowed otherwise, and
+    when ``text`` is both an index and another scenario's name (ambiguous)."""
     names = [c["name"] for c in man["configs"]]
-    if text in names:
-        return names.index(text)
-    if text.isascii() and text.isdigit() and int(text) < len(names):
-        return int(text)
+    last = len(names) - 1
+
+    def as_index(t: str):
+        return int(t) if t.isascii() and t.isdigit() and int(t) <= last else None
+
+    kind, sep, rest = text.partition(":")
+    if sep and kind in ("name", "index") and text not in names:
+        if kind == "name" and rest in names:
+            return names.index(rest)
+        if kind == "index" and as_index(rest) is not None:
+            return as_index(rest)
+        raise UserError(f"SCENARIO: {text!r}: no scenario of {d} has that {kind}; allowed: "
+                        f"index:0..index:{last} or name: and a name from summary.csv")
+    by_name = names.index(text) if text in names else None
+    by_index = as_index(text)
+    if by_name is not None and by_index is not None and by_name != by_index:
+        raise UserError(f"SCENARIO: {text!r} is ambiguous: the name of scenario {by_name} and "
+                        f"the index of scenario {names[by_index]!r}; choose with "
+                        f"name:{text} or index:{text}")
+    if by_name is not None or by_index is not None:
+        return by_index if by_name is None else by_name
     raise UserError(f"SCENARIO: {text!r} is neither a scenario name of {d} nor an "
-                    f"index; allowed: 0..{len(names) - 1} or a name from summary.csv")
+                    f"index; allowed: 0..{last} or a name from summary.csv (or index:N, "
+                    "name:NAME)")
 
 
 def _agreement_text(rep, man: dict) -> str:
@@ -1307,6 +1367,8 @@ def _check_environment(args) -> None:
     gl = os.environ.get("MUJOCO_GL", "").strip().lower()
     if gl and gl not in MUJOCO_GL_READ:
         raise UserError(f"MUJOCO_GL={gl!r}: allowed: egl, osmesa, glfw, glx (or unset)")
+    if args.cmd in SIMULATING:
+        _check_jax_switches()
     platforms = os.environ.get("JAX_PLATFORMS", "").strip()
     if not platforms or args.cmd in ("list", "show") or getattr(args, "distributed", False):
         return
@@ -1316,6 +1378,25 @@ def _check_environment(args) -> None:
     except RuntimeError as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise UserError(f"JAX_PLATFORMS={platforms!r}: {first}") from None
+
+
+#: the commands that run the closed loop (``JAX_DISABLE_JIT``, ``JAX_NUMPY_RANK_PROMOTION``)
+SIMULATING = ("run", "bench", "ticks", "render")
+
+
+def _check_jax_switches() -> None:
+    """A user error, before any work, for JAX switches the closed loop cannot run with:
+    ``JAX_NUMPY_RANK_PROMOTION=raise`` (its arrays broadcast by rank: a traceback) and
+    ``JAX_DISABLE_JIT`` on (every operation dispatched one at a time: hours for seconds)."""
+    import jax
+    rank = os.environ.get("JAX_NUMPY_RANK_PROMOTION")
+    if rank is not None and jax.config.jax_numpy_rank_promotion not in ("allow", "warn"):
+        raise UserError(f"JAX_NUMPY_RANK_PROMOTION={rank!r}: the closed loop promotes ranks; "
+                        "allowed: allow or warn (or unset)")
+    off = os.environ.get("JAX_DISABLE_JIT")
+    if off is not None and jax.config.jax_disable_jit:
+        raise UserError(f"JAX_DISABLE_JIT={off!r}: the closed loop needs compilation (without "
+                        "it a run takes hours); allowed: 0, false, no or off (or unset)")
 
 
 def _after_stop(args) -> str:
