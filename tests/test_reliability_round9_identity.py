@@ -116,3 +116,15 @@ def test_numerics_leave_out_the_device_count():
             os.environ.pop("XLA_FLAGS")
         else:
             os.environ["XLA_FLAGS"] = old
+
+
+def test_an_edited_batch_is_named_and_no_chunk_is_blamed(done, capsys):
+    """R01: the manifest's batch edited by hand made `report` call a good chunk "not a chunk of
+    this run; remove it" (following that advice deletes a result); the batch is checked against
+    the run's identity and the manifest named."""
+    _edit(done, lambda man: man.update(batch=2))
+    chunks = sorted(p.name for p in (done / "chunks").iterdir())
+    line = _one_line_error(*cli(capsys, "report", done)[::2])
+    assert "manifest.json: damaged manifest: its batch 2 is not the run's chunk size" in line
+    assert "remove" not in line.replace("nothing was removed", "")
+    assert sorted(p.name for p in (done / "chunks").iterdir()) == chunks

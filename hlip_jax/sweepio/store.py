@@ -255,6 +255,10 @@ def _check_identity(p: Path, man: dict) -> None:
         return
     if not isinstance(extra, dict):         # written before run_identity (or it was removed)
         extra = legacy_identity(man["batch"], man.get("x64"), man.get("with_coverage", True))
+    if extra.get("batch", man["batch"]) != man["batch"]:
+        raise StoreError(f"{p}: damaged manifest: its batch {man['batch']} is not the run's "
+                         f"chunk size ({extra.get('batch')}, in its run_identity; edited by "
+                         "hand?), so its chunks would be read wrongly; nothing was removed")
     layout = extra.get("layout")
     if layout is not None and layout != layout_digest(man):
         raise StoreError(f"{p}: damaged manifest: its axes or paths do not match the run's "
