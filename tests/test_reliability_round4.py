@@ -18,14 +18,7 @@ import pytest
 from hlip_jax.core import fields
 from hlip_jax.sweepio import store
 from hlip_jax.runtime import xla_flags
-from test_cli import TINY, _one_line_error, _run_ok, cli, fake_loop  # noqa: F401 (fixture)
-
-
-@pytest.fixture
-def tiny_sweep(tmp_path):
-    p = tmp_path / "clitiny.toml"
-    p.write_text(TINY)
-    return p
+from test_cli import TINY, _one_line_error, _run_ok, cli, fake_loop, tiny_sweep  # noqa: F401 (fixtures)
 
 
 @pytest.fixture

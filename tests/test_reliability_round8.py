@@ -17,7 +17,8 @@ from pathlib import Path
 import pytest
 
 from hlip_jax.sweepio import store, sweep
-from test_cli import TINY, _one_line_error, _run_ok, cli, fake_loop  # noqa: F401 (fixture)
+from test_cli import TINY, _one_line_error, _run_ok, cli, fake_loop, tiny_sweep  # noqa: F401 (fixtures)
+from test_reliability_round4 import done  # noqa: F401 (fixture: a finished tiny run)
 
 HULL = "".join(f"{pl},{c},{p},{v}\n" for pl in (1, 2)
                for c, p, v in ((0.01, 0.01, 0.05), (-0.01, 0.01, 0.05), (0.01, -0.01, 0.05),
@@ -48,21 +49,6 @@ def _tube(folder: Path, hull='w_hull_file = "w.csv"', grid="") -> Path:
     p = folder / "s.toml"
     p.write_text(TUBE.format(hull=hull, grid=grid))
     return p
-
-
-@pytest.fixture
-def tiny_sweep(tmp_path):
-    p = tmp_path / "clitiny.toml"
-    p.write_text(TINY)
-    return p
-
-
-@pytest.fixture
-def done(tmp_path, tiny_sweep, capsys, fake_loop):
-    """A finished run of the tiny sweep (4 scenarios, one chunk each), with its summary."""
-    out = tmp_path / "o"
-    _run_ok(capsys, tiny_sweep, out)
-    return out
 
 
 def test_a_data_file_edited_before_resume_is_refused(tmp_path, capsys, fake_loop):

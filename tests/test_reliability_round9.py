@@ -18,24 +18,10 @@ import numpy as np
 import pytest
 
 from hlip_jax.core import s2s_model
-from test_cli import TINY, _one_line_error, _run_ok, cli, fake_loop  # noqa: F401 (fixture)
+from test_cli import _one_line_error, _run_ok, cli, fake_loop, tiny_sweep  # noqa: F401 (fixtures)
+from test_reliability_round4 import done  # noqa: F401 (fixture: a finished tiny run)
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture
-def tiny_sweep(tmp_path):
-    p = tmp_path / "clitiny.toml"
-    p.write_text(TINY)
-    return p
-
-
-@pytest.fixture
-def done(tmp_path, tiny_sweep, capsys, fake_loop):
-    """A finished run of the tiny sweep (4 scenarios, one chunk each)."""
-    out = tmp_path / "o"
-    _run_ok(capsys, tiny_sweep, out)
-    return out
 
 
 def test_identify_replaces_a_dangling_link_never_writing_its_target(done, tmp_path, capsys):

@@ -13,22 +13,8 @@ import json
 import pytest
 
 from hlip_jax.sweepio import runner
-from test_cli import TINY, _one_line_error, _run_ok, cli, fake_loop  # noqa: F401 (fixture)
-
-
-@pytest.fixture
-def tiny_sweep(tmp_path):
-    p = tmp_path / "clitiny.toml"
-    p.write_text(TINY)
-    return p
-
-
-@pytest.fixture
-def done(tmp_path, tiny_sweep, capsys, fake_loop):
-    """A finished run of the tiny sweep (4 scenarios, one chunk each), with its summary."""
-    out = tmp_path / "o"
-    _run_ok(capsys, tiny_sweep, out)
-    return out
+from test_cli import _one_line_error, cli, fake_loop, tiny_sweep  # noqa: F401 (fixtures)
+from test_reliability_round4 import done  # noqa: F401 (fixture: a finished tiny run)
 
 
 def _edit(done, change) -> None:
