@@ -539,7 +539,8 @@ def cmd_run(args) -> int:
     out = Path(args.out) if args.out is not None else Path("results") / sw.name
     if ".." in out.parts:       # lnk/../o: one real folder for every write (not cwd/o)
         out = Path(os.path.realpath(out))
-    _cache_inside(args, out)
+    if args.out is None:        # the default results/<sweep name>, known once the sweep is read
+        _cache_inside(args, out)
     try:
         not_dir = out.exists() and not out.is_dir()
     except OSError as err:      # e.g. a name too long for the file system

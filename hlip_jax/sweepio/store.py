@@ -48,7 +48,6 @@ import csv
 import datetime as _dt
 import fcntl
 import io
-import hashlib
 import json
 import math
 import os
@@ -239,9 +238,7 @@ def legacy_identity(batch: int, x64, with_coverage: bool) -> dict:
 def layout_digest(layout: dict) -> str:
     """SHA-256 of a run's ``axes`` and ``paths`` (a manifest, or the sweep's layout): how the
     report groups and labels its results."""
-    payload = {"axes": layout.get("axes"), "paths": layout.get("paths")}
-    return hashlib.sha256(json.dumps(payload, sort_keys=True, separators=(",", ":"))
-                          .encode()).hexdigest()
+    return sweep_mod.json_digest({"axes": layout.get("axes"), "paths": layout.get("paths")})
 
 
 def _check_identity(p: Path, man: dict) -> None:

@@ -104,7 +104,7 @@ from hlip_jax.core.fields import show_value as _fmt
 
 __all__ = [
     "SweepError", "Axis", "Sweep", "load_sweep", "parse_sweep", "config_to_dict",
-    "config_hash", "dicts_hash", "as_written", "data_files", "file_digest", "file_digests",
+    "config_hash", "dicts_hash", "json_digest", "as_written", "data_files", "file_digest", "file_digests",
     "path_param_spec", "known_shapes", "MAX_SCENARIOS", "file_slug",
     "STATIC_FIELDS",
 ]
@@ -1310,7 +1310,12 @@ def config_hash(configs, extra: dict | None = None) -> str:
 
 def dicts_hash(config_dicts: list, extra: dict | None = None) -> str:
     """:func:`config_hash` of configs already as dicts (a manifest's ``configs``)."""
-    payload = {"configs": config_dicts, "extra": extra or {}}
+    return json_digest({"configs": config_dicts, "extra": extra or {}})
+
+
+def json_digest(payload) -> str:
+    """SHA-256 (hex) of the canonical JSON of ``payload`` (keys sorted, no spaces): the same
+    digest for equal data however its dicts were built."""
     s = json.dumps(payload, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(s.encode()).hexdigest()
 
