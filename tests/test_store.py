@@ -18,7 +18,7 @@ import jax
 import numpy as np
 import pytest
 
-from hlip_jax.core import hlip, steplog
+from hlip_jax.core import hlip, sets, steplog
 from hlip_jax.analysis import metrics
 from hlip_jax.sweepio import runner, store, sweep
 from hlip_jax.analysis import errors
@@ -443,45 +443,36 @@ def test_progress_line_takes_the_in_chunk_eta_until_chunks_give_a_rate():
     assert "ETA -" in out.getvalue().splitlines()[-1]
 
 
-def test_chunk_metrics_in_worker_processes_equal_one_process():
-    """A large chunk's metrics are computed by spawned worker processes (a 1024-robot Cassie
-    chunk needs minutes of mRPI sets on one core); the rows must be those of one process,
-    in scenario order, bit for bit (same float64 code; NaN where a metric is undefined)."""
-    cfgs = list(_tiny().scenarios)
+def test_chunk_metrics_equal_each_scenario_alone_and_the_per_set_reference():
+    """A chunk's metrics are computed with every scenario's coverage sets batched: the rows
+    must be those of each scenario computed alone (bit for bit: the same sets and the same
+    tests), and the coverage columns those of the per-set path (estimators.fit's box method,
+    sets.mrpi, the float64 gauge; tolerance 1e-9 on fractions, 1e-12 relative on volumes)."""
+    from hlip_jax.analysis import estimators, runs
+    cfgs = [dataclasses.replace(c, duration=6.0) for c in _tiny().scenarios]
     arrays = store.log_to_arrays(fake_simulate(cfgs), len(cfgs))
     pushes = [metrics.push_windows(c) for c in cfgs]
-    one = runner.chunk_metrics(arrays, pushes, True, workers=1)
-    two = runner.chunk_metrics(arrays, pushes, True, workers=3)
-    assert len(one) == len(two) == len(cfgs)
-    for a, b in zip(one, two):
-        assert a.keys() == b.keys()
-        np.testing.assert_array_equal(np.array(list(a.values()), float),
-                                      np.array(list(b.values()), float))
-    assert runner.metric_workers(16, cpus=2) == 1          # a CPU chunk stays in-process
-    assert runner.metric_workers(1024, cpus=16) == 16
-    assert runner.metric_workers(100, cpus=16) == 3
-
-
-def test_chunk_metrics_fall_back_to_this_process_without_workers(monkeypatch):
-    """Where worker processes cannot start, the finished chunk's metrics are computed here
-    (a simulated chunk is never lost to the analysis): same rows as the serial path."""
-    import concurrent.futures
-
-    class NoPool:
-        def __init__(self, *a, **k):
-            raise OSError("no processes here")
-
-    cfgs = list(_tiny().scenarios)[:4]
-    arrays = store.log_to_arrays(fake_simulate(cfgs), len(cfgs))
-    pushes = [metrics.push_windows(c) for c in cfgs]
-    one = runner.chunk_metrics(arrays, pushes, False, workers=1)
-    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor", NoPool)
-    two = runner.chunk_metrics(arrays, pushes, False, workers=2)
-    assert len(one) == len(two) == 4
-    for a, b in zip(one, two):
-        assert a.keys() == b.keys()
-        np.testing.assert_array_equal(np.array(list(a.values()), float),
-                                      np.array(list(b.values()), float))
+    batch = runner.chunk_metrics(arrays, pushes, True)
+    assert sum(math.isfinite(row["cov_x_outer"]) for row in batch) == 6     # two fell early
+    assert len(batch) == len(cfgs)
+    for s, row in enumerate(batch):
+        alone = metrics.scenario_metrics(arrays, s, True, pushes[s])
+        assert row.keys() == alone.keys()
+        np.testing.assert_array_equal(np.array(list(row.values()), float),
+                                      np.array(list(alone.values()), float))
+        Acl, _, run = runs.run_errors(arrays, s, pushes[s], 4)
+        walked = run.masks.alive & ~run.masks.push_window
+        for p, plane in enumerate("xy"):
+            d = run.d[walked[1:] & walked[:-1], p]
+            E = estimators.fit("box", Acl[p], [d], [np.zeros((0, d.shape[-1]))], [False], 0.5).E
+            pts = run.kept_e(p)
+            if not len(pts):                       # fell before the warm-up ended
+                assert math.isnan(row[f"cov_{plane}_inner"])
+                continue
+            g_in, g_out = sets.gauge(E.inner, pts), sets.gauge(E.outer, pts)
+            assert row[f"cov_{plane}_inner"] == pytest.approx(np.mean(g_in <= 1 + 1e-5), abs=1e-9)
+            assert row[f"cov_{plane}_outer"] == pytest.approx(np.mean(g_out <= 1 + 1e-5), abs=1e-9)
+            assert row[f"e_size_{plane}"] == pytest.approx(float(E.volume()), rel=1e-12)
 
 
 @pytest.mark.slow

@@ -57,10 +57,11 @@ import math
 
 import numpy as np
 
+from hlip_jax.core import box_mrpi
 from hlip_jax.core import invariant as inv
 from hlip_jax.core import steplog
 from hlip_jax.analysis import estimators, masks, runs, splits
-from hlip_jax.analysis.errors import placement
+from hlip_jax.analysis.errors import W_MIN_HALFWIDTH, placement
 
 SUMMARY_METRICS = (
     "steps", "rms_track_err", "max_track_err", "rms_pos_err", "final_pos_err",
@@ -90,34 +91,58 @@ def _seg_dist(P: np.ndarray, R: np.ndarray) -> np.ndarray:
     return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
 
 
-def _box(A_cl, run, p: int, steps: np.ndarray):
-    """The box estimator's (W, E) from the disturbances d_k of plane p with k and k+1 both in
-    ``steps`` (K,)."""
-    d = run.d[steps[1:] & steps[:-1], p]
-    return estimators.fit("box", A_cl, [d], [np.zeros((0, d.shape[-1]))], [False], 0.5)
-
-
-def _coverage_metrics(log: dict, s: int, pushes, warmup: int) -> dict:
-    """Per-plane in-sample and time-split coverage of the kept errors (module doc)."""
-    out = {k: math.nan for plane in "xy" for k in (
-        f"cov_{plane}_inner", f"cov_{plane}_outer", f"cov_{plane}_heldout", f"e_size_{plane}")}
+def _walked_rows(log: dict, s: int, pushes, warmup: int) -> list[tuple]:
+    """Scenario ``s``'s two planes as (A_cl (n, n), W samples, points) twice each: the
+    in-sample row (W from the disturbances d_k with k, k+1 both walked outside push windows,
+    points the kept errors) and the held-out row (W from the first half of the kept steps,
+    points the errors of the second half)."""
     Acl, _, run = runs.run_errors(log, s, pushes, warmup)
     m = run.masks
     walked = m.alive & ~m.push_window
     early, late = splits.time_halves(m.kept)
-    for p, plane in enumerate("xy"):
-        try:
-            E = _box(Acl[p], run, p, walked).E
-        except ValueError:          # no disturbance sample, or A + BK not Schur stable
-            continue
-        c = inv.coverage(E, run.kept_e(p))
-        out[f"cov_{plane}_inner"], out[f"cov_{plane}_outer"] = c.inner, c.outer
-        out[f"e_size_{plane}"] = float(E.volume())
-        try:
-            E_early = _box(Acl[p], run, p, early).E
-        except ValueError:
-            continue
-        out[f"cov_{plane}_heldout"] = inv.coverage(E_early, run.e[late, p]).outer
+    out = []
+    for p in range(2):
+        for steps, pts in ((walked, run.kept_e(p)), (early, run.e[late, p])):
+            out.append((np.ascontiguousarray(Acl[p], np.float64),
+                        run.d[steps[1:] & steps[:-1], p], pts))
+    return out
+
+
+def _box_brackets(rows: list[tuple]):
+    """The box estimator's brackets of ``rows`` (A_cl, W samples, points), batched per A_cl
+    (:func:`hlip_jax.core.box_mrpi.box_sets`): a list of (ok, coverage inner, outer, volume)."""
+    out = [(False, math.nan, math.nan, math.nan)] * len(rows)
+    by_a: dict = {}
+    for i, (A, d, _) in enumerate(rows):
+        if len(d) and inv.schur_stable(A):
+            by_a.setdefault(A.tobytes(), []).append(i)
+    for ix in by_a.values():
+        W = [estimators.box_w(rows[i][1]) for i in ix]
+        bs = box_mrpi.box_sets(rows[ix[0]][0], np.stack([w.lo for w in W]),
+                               np.stack([w.hi for w in W]), W_MIN_HALFWIDTH)
+        cov = box_mrpi.coverage(bs, [rows[i][2] for i in ix])
+        for j, i in enumerate(ix):
+            out[i] = (bool(bs.ok[j]), cov.inner[j], cov.outer[j], bs.volume[j])
+    return out
+
+
+def coverage_columns(log: dict, scenarios, pushes: list, warmup: int) -> list[dict]:
+    """The in-sample and time-split coverage columns (module doc) of ``scenarios`` of a log,
+    ``pushes`` their push windows: every scenario's sets and membership tests batched by
+    closed-loop matrix, the same sets as :func:`hlip_jax.core.sets.mrpi` of each box."""
+    rows = [r for s, w in zip(scenarios, pushes) for r in _walked_rows(log, s, w, warmup)]
+    fits = _box_brackets(rows)
+    out = []
+    for k in range(len(scenarios)):
+        m = {key: math.nan for plane in "xy" for key in (
+            f"cov_{plane}_inner", f"cov_{plane}_outer", f"cov_{plane}_heldout", f"e_size_{plane}")}
+        for p, plane in enumerate("xy"):
+            (ok, inner, outer, vol), (ok_early, _, heldout, _) = fits[4 * k + 2 * p:4 * k + 2 * p + 2]
+            if ok:
+                m.update({f"cov_{plane}_inner": inner, f"cov_{plane}_outer": outer,
+                          f"e_size_{plane}": vol,
+                          f"cov_{plane}_heldout": heldout if ok_early else math.nan})
+        out.append(m)
     return out
 
 
@@ -186,8 +211,20 @@ def scenario_metrics(log: dict, s: int, with_coverage: bool = True, pushes=(),
         for j, comp in enumerate("cpv"):
             m[f"emax_{plane}_{comp}"] = float(np.max(e[:, p, j]))
     if with_coverage:
-        m.update(_coverage_metrics(log, s, pushes, warmup))
+        m.update(coverage_columns(log, [s], [pushes], warmup)[0])
     return m
+
+
+def chunk_metrics(log: dict, pushes: list, with_coverage: bool = True,
+                  warmup: int = masks.WARMUP) -> list[dict]:
+    """:func:`scenario_metrics` of every scenario of a log dict (leading axis: the scenarios,
+    ``pushes`` one list of push windows each), the coverage columns of all of them in one batch
+    (:func:`coverage_columns`)."""
+    out = [scenario_metrics(log, s, False, w, warmup) for s, w in enumerate(pushes)]
+    if with_coverage:
+        for m, c in zip(out, coverage_columns(log, range(len(pushes)), pushes, warmup)):
+            m.update(c)
+    return out
 
 
 

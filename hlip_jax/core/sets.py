@@ -330,7 +330,7 @@ def _for_kernels(t):
     return jax.tree_util.tree_map(lambda a: a if isinstance(a, jax.Array) else np.asarray(a), t)
 
 
-def _bucket(k: int) -> int:
+def bucket(k: int) -> int:
     """Next power of two ≥ max(k, 16): padded sizes so that sets and sample batches of
     similar size share one compiled kernel."""
     return 1 << max(4, int(k - 1).bit_length())
@@ -339,7 +339,7 @@ def _bucket(k: int) -> int:
 def _pad_facets(N, b, fill):
     """Pad facet rows to a bucket size with inert rows (0ᵀx ≤ fill, fill ≥ 0)."""
     F = N.shape[0]
-    pad = _bucket(F) - F
+    pad = bucket(F) - F
     if pad == 0:
         return N, b
     xp = jnp if isinstance(N, jax.Array) or isinstance(b, jax.Array) else np
@@ -356,8 +356,8 @@ def _padded_call(fn, x):
     if k == 0:
         return jnp.zeros(batch, bool)
     if isinstance(flat, jax.Array):            # traced or on a device: stay there
-        return fn(jnp.pad(flat, ((0, _bucket(k) - k), (0, 0))))[:k].reshape(batch)
-    return np.asarray(fn(np.pad(flat, ((0, _bucket(k) - k), (0, 0)))))[:k].reshape(batch)
+        return fn(jnp.pad(flat, ((0, bucket(k) - k), (0, 0))))[:k].reshape(batch)
+    return np.asarray(fn(np.pad(flat, ((0, bucket(k) - k), (0, 0)))))[:k].reshape(batch)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -446,7 +446,7 @@ def _zono_contains_two_pass(z: Zonotope, x, tol):
 def _padded_int(fn, x):
     flat = x.reshape(-1, x.shape[-1])
     k = flat.shape[0]
-    return np.asarray(fn(jnp.pad(flat, ((0, _bucket(k) - k), (0, 0)))))[:k].reshape(x.shape[:-1])
+    return np.asarray(fn(jnp.pad(flat, ((0, bucket(k) - k), (0, 0)))))[:k].reshape(x.shape[:-1])
 
 
 def _blocked(fn, x, chunk, n_facets):
@@ -569,12 +569,12 @@ def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
     """
     c = as_float64(z.center)
     G = as_float64(z.generators).reshape(-1, c.shape[0])
-    N, n0 = _facet_normals(G, n_prefix, *_significant(G, n_prefix))
+    N, n0 = _facet_normals(G, n_prefix, *significant_split(G, n_prefix))
     h, h0 = _facet_widths(N, G, n0, n_prefix)
     return Zonotope(c, G, N, h, h0)
 
 
-def _significant(G: np.ndarray, n_prefix: int) -> tuple[np.ndarray, np.ndarray]:
+def significant_split(G: np.ndarray, n_prefix: int) -> tuple[np.ndarray, np.ndarray]:
     """(keep, keep0): :func:`significant_generators` of G, and of its first ``n_prefix``
     generators taken alone (empty without a prefix: 0 < n_prefix < m does not hold)."""
     keep = significant_generators(G)
@@ -586,7 +586,7 @@ def _facet_normals(G: np.ndarray, n_prefix: int, keep: np.ndarray,
                    keep0: np.ndarray) -> tuple[np.ndarray, int]:
     """(N, n0): the facet normals of the zonotope of the generators G[keep], the complete facet
     set of its first ``n_prefix`` generators (those of them in ``keep0``) first (n0 rows; 0
-    without a prefix, ``keep0`` empty); the masks come from :func:`_significant`."""
+    without a prefix, ``keep0`` empty); the masks come from :func:`significant_split`."""
     n = G.shape[1]
     N, n0 = _normals_of(G[keep], n), 0
     if len(keep0):
@@ -824,22 +824,22 @@ def _box_sum(A: np.ndarray, r: np.ndarray, c: np.ndarray, G: np.ndarray, s: int,
     Its generators are r_j A^i e_j: positive multiples of the unit generators u_{ij} = A^i e_j,
     so the facet normals are those of the u_{ij} (the same for every box) and each half-width
     is linear in r, h_f = Σ_j r_j Σ_i |N_f · A^i e_j| = (H r)_f.  N and H are formed once per
-    (A, s, prefix, generators left out) (:func:`_box_sum_facets`); a sweep's scenarios share
+    (A, s, prefix, generators left out) (:func:`box_sum_template`); a sweep's scenarios share
     A + BK, so the per-scenario cost is H r instead of |N Gᵀ| (equal up to the order of the sums)."""
     n = len(r)
     n_prefix = n_prefix_terms * n
-    keep, keep0 = _significant(G, n_prefix)
-    N, H, H0, T = _box_sum_facets(A.tobytes(), n, s, n_prefix, keep.tobytes(), keep0.tobytes())
+    keep, keep0 = significant_split(G, n_prefix)
+    N, H, H0, T = box_sum_template(A.tobytes(), n, s, n_prefix, keep.tobytes(), keep0.tobytes())
     rr = functools.reduce(np.multiply.outer, [r] * n)          # r_a r_b … over label tuples
     return Zonotope(c, G, N, H @ r, None if H0 is None else H0 @ r,
                     np.float64(2.0 ** n * np.sum(T * rr)))
 
 
 @functools.lru_cache(maxsize=64)
-def _box_sum_facets(A_bytes: bytes, n: int, s: int, n_prefix: int, keep: bytes, keep0: bytes):
+def box_sum_template(A_bytes: bytes, n: int, s: int, n_prefix: int, keep: bytes, keep0: bytes):
     """(N, H, H0, T) of :func:`_box_sum` (facet normals, half-widths per unit r, the prefix's,
     determinant sums) for A (its bytes, n × n), s terms, a prefix of ``n_prefix`` generators
-    and the masks of the generators that count (:func:`_significant`, bytes of bool)."""
+    and the masks of the generators that count (:func:`significant_split`, bytes of bool)."""
     A = np.frombuffer(A_bytes, np.float64).reshape(n, n)
     U, Ai = [], np.eye(n)
     for _ in range(s):
@@ -858,7 +858,7 @@ def _box_sum_facets(A_bytes: bytes, n: int, s: int, n_prefix: int, keep: bytes, 
 
 def box_sum_cache_info():
     """Hits and misses of the per-(A, s) facet templates of :func:`truncated_sum`'s box path."""
-    return _box_sum_facets.cache_info()
+    return box_sum_template.cache_info()
 
 
 def _determinant_sums(U: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
@@ -950,29 +950,54 @@ def mrpi(A_cl, W, eps: float = 1e-5, s_max: int = 500, directions=None,
     raise TypeError(f"W: Box, Zonotope or Hull expected, got {type(W).__name__}")
 
 
-def _choose_s(A: np.ndarray, alpha_fn, M_fn, eps, s_max, nilpotent_tol):
-    """Smallest s with α(s) < 1 and α/(1−α)·M(s) ≤ ε; returns (s, α, exact)."""
+def choose_orders(A: np.ndarray, alpha_fn, M_fn, eps, s_max, nilpotent_tol, rows: int = 1):
+    """The truncation order of each of ``rows`` sums (Raković et al. 2005): the smallest s with
+    α(s) ≤ ``nilpotent_tol`` (A^s W = {0}: exact, α taken as 0) or α(s) < 1 and
+    α/(1−α)·M(s) ≤ ε.  ``alpha_fn(A^s)`` and ``M_fn(s)`` give α(s) and M(s) per row (rows,).
+    Returns (s (rows,) int, α (rows,) float, exact (rows,) bool), s = 0 for a row with no such
+    s ≤ ``s_max`` (:func:`one_order` raises instead)."""
     n = A.shape[0]
     As = np.eye(n)
+    s_out, a_out = np.zeros(rows, np.int64), np.zeros(rows)
+    exact, open_ = np.zeros(rows, bool), np.ones(rows, bool)
     for s in range(1, s_max + 1):
         As = A @ As  # A^s
-        a = alpha_fn(As)
-        if a <= nilpotent_tol:
-            return s, 0.0, True
-        if a < 1.0 and a / (1.0 - a) * M_fn(s) <= eps:
-            return s, float(a), False
-    raise ValueError(f"mrpi: no s ≤ s_max={s_max} meets eps={eps}; raise s_max or eps")
+        a = np.asarray(alpha_fn(As), np.float64).reshape(rows)
+        nil = open_ & (a <= nilpotent_tol)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            ok = open_ & ~nil & (a < 1.0) & (a / (1.0 - a) * M_fn(s) <= eps)
+        s_out[nil | ok], a_out[ok], exact[nil] = s, a[ok], True
+        open_ &= ~(nil | ok)
+        if not open_.any():
+            break
+    return s_out, a_out, exact
+
+
+def one_order(A: np.ndarray, alpha_fn, M_fn, eps, s_max, nilpotent_tol) -> tuple[int, float, bool]:
+    """:func:`choose_orders` of one sum as (s, α, exact); ValueError when no s ≤ ``s_max``
+    meets ε."""
+    s, a, exact = (v[0].item() for v in choose_orders(A, alpha_fn, M_fn, eps, s_max, nilpotent_tol))
+    if s == 0:
+        raise ValueError(f"mrpi: no s ≤ s_max={s_max} meets eps={eps}; raise s_max or eps")
+    return s, a, exact
 
 
 def _prefix_terms(A: np.ndarray, G: np.ndarray, s: int, tail: float = 0.1) -> int:
-    """Number of leading terms A^i W whose sum carries all but ``tail`` of the size of F_s
-    (max-coordinate measure); 0 (no two-pass membership) when the sum is short anyway."""
-    if s < 6:
-        return 0
+    """:func:`prefix_terms` of the sum F_s of the zonotope of generators G (m, n)."""
     sizes, Ai = [], np.eye(A.shape[0])
-    for _ in range(s):
+    for _ in range(s if s >= 6 else 0):
         sizes.append(np.max(np.sum(np.abs(G @ Ai.T), axis=0)))
         Ai = A @ Ai
+    return prefix_terms(np.asarray(sizes), s, tail)
+
+
+def prefix_terms(sizes: np.ndarray, s: int, tail: float = 0.1) -> int:
+    """Number of leading terms A^i W whose sum carries all but ``tail`` of the size of F_s,
+    ``sizes`` (s,) the terms' max-coordinate sizes max_j h_{A^i W}(e_j); 0 (no two-pass
+    membership) when the sum is short anyway (s < 6) or the prefix would be over half of it."""
+    if s < 6:
+        return 0
+    sizes = np.asarray(sizes, np.float64)[:s]
     rest = np.cumsum(sizes[::-1])[::-1] / np.sum(sizes)  # rest[i] = share of terms ≥ i
     s0 = int(np.argmax(rest <= tail))
     return s0 if 0 < s0 <= s // 2 else 0
@@ -1005,7 +1030,7 @@ def _mrpi_zonotope(A_cl, W: Zonotope, eps, s_max, nil_tol) -> MRPI:
             state["k"] += 1
         return float(np.max(state["acc"]))
 
-    s, a, exact = _choose_s(A, alpha_fn, M_fn, eps, s_max, nil_tol)
+    s, a, exact = one_order(A, alpha_fn, M_fn, eps, s_max, nil_tol)
     centre = np.linalg.solve(np.eye(n) - A, c)
     inner = truncated_sum(A, Zonotope(centre, G), s, center=centre,
                           n_prefix_terms=_prefix_terms(A, G, s) if n == 3 else 0)
@@ -1053,7 +1078,7 @@ def _mrpi_hull(A_cl, W: Hull, eps, s_max, directions, nil_tol) -> MRPI:
             state["k"] += 1
         return float(np.max(state["hax"]))
 
-    s, a, exact = _choose_s(A, alpha_fn, M_fn, eps, s_max, nil_tol)
+    s, a, exact = one_order(A, alpha_fn, M_fn, eps, s_max, nil_tol)
     M_fn(s)
     centre = np.linalg.solve(np.eye(n) - A, c)
     inner_pts = _minkowski_power_sum(A, V0, s) + centre

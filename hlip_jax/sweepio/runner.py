@@ -21,7 +21,6 @@ import numpy as np
 from hlip_jax.runtime import impl, progress
 from hlip_jax.analysis import metrics
 from hlip_jax.sweepio import store
-from hlip_jax.runtime import workers as workers_mod
 from hlip_jax.analysis import masks
 from hlip_jax.analysis import settings as analysis_settings
 from hlip_jax.sweepio import sweep as sweep_mod
@@ -478,40 +477,10 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
     return ran, skipped, done
 
 
-#: scenarios per worker process below which a chunk's metrics are computed in this process
-METRICS_PER_WORKER = 32
-
-
-def metric_workers(n: int, cpus: int | None = None) -> int:
-    """Worker processes for the metrics of a chunk of ``n`` scenarios: one per
-    :data:`METRICS_PER_WORKER` scenarios, at most one per CPU; below 2 the chunk is done
-    in this process (a 16-scenario CPU chunk is, a 1024-robot GPU chunk is not)."""
-    return workers_mod.count(n, METRICS_PER_WORKER, cpus)
-
-
-def metrics_block(arrays: dict, pushes: list, with_coverage: bool,
-                  warmup: int = masks.WARMUP) -> list[dict]:
-    """:func:`metrics.scenario_metrics` of every scenario of ``arrays`` (leading axis: the
-    scenarios, one list of push windows each, :func:`metrics.push_windows`), on the host
-    CPU."""
-    with on_host():
-        return [metrics.scenario_metrics(arrays, s, with_coverage, w, warmup)
-                for s, w in enumerate(pushes)]
-
-
 def chunk_metrics(arrays: dict, pushes: list, with_coverage: bool,
-                  workers: int | None = None, warmup: int = masks.WARMUP) -> list[dict]:
-    """Summary metrics of every scenario of a stored chunk, in scenario order.
-
-    The coverage metrics cost about 0.5 s per Cassie scenario (an mRPI set of tens of terms per
-    plane, twice): one 1024-robot GPU chunk would keep one CPU core busy for ten minutes.  With
-    ``workers`` ≥ 2 (default :func:`metric_workers`) contiguous blocks of scenarios go to that
-    many spawned processes (:func:`hlip_jax.runtime.workers.starmap`); the numbers are the same as in
-    one process (same code, float64 numpy on the CPU, JAX in the parent's precision)."""
-    n = len(pushes)
-    workers = metric_workers(n) if workers is None else min(workers, n)
-    edges = np.linspace(0, n, max(workers, 1) + 1).astype(int)
-    blocks = [({k: v[a:b] for k, v in arrays.items()}, pushes[a:b], with_coverage, warmup)
-              for a, b in zip(edges[:-1], edges[1:])]
-    parts = workers_mod.starmap(metrics_block, blocks, workers)
-    return [m for part in parts for m in part]
+                  warmup: int = masks.WARMUP) -> list[dict]:
+    """Summary metrics of every scenario of a stored chunk, in scenario order
+    (:func:`hlip_jax.analysis.metrics.chunk_metrics`): the coverage columns' mRPI sets of the
+    whole chunk built per closed-loop matrix and their membership tests batched per facet
+    template, on JAX's default device (the accelerator that simulated the chunk, if any)."""
+    return metrics.chunk_metrics(arrays, pushes, with_coverage, warmup)
