@@ -111,3 +111,41 @@ def test_the_tolerance_covers_the_kernels_precision():
     eps = np.finfo(np.float64 if jax.config.jax_enable_x64 else np.float32).eps
     assert box_mrpi.compute_tolerance(1e-9) == max(1e-9, 50 * float(eps))
     assert box_mrpi.compute_tolerance(1e-3) == 1e-3
+
+
+def test_templates_kept_on_disk_are_found_by_a_later_process_and_damage_is_ignored(tmp_path):
+    """With a template store the facet templates are written once and read back equal (a new
+    process's lru cache is empty, as here after cache_clear); a damaged or foreign file is
+    ignored and the template built again, equal to the stored one."""
+    from hlip_jax.runtime import array_cache
+    rng = np.random.default_rng(7)
+    A = _stable(rng, 3)
+    lo, hi = _boxes(rng, 3, 3)
+    store = array_cache.ArrayCache(tmp_path / "box_templates")
+    sets.box_sum_template.cache_clear()
+    sets.keep_templates_in(store)
+    try:
+        first = box_mrpi.box_sets(A, lo, hi, 1e-6)
+        files = sorted(store.path.glob("*.npz"))
+        assert files and len(files) == len({k for k in first.template})
+        sets.box_sum_template.cache_clear()
+        again = box_mrpi.box_sets(A, lo, hi, 1e-6)
+        for a, b in zip(first.offsets, again.offsets):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(first.volume, again.volume)
+        assert all(store.load(sets.template_key(*k)) is not None for k in first.template)
+        files[0].write_bytes(b"not a template")
+        for f in files[1:]:                      # a valid npz whose digest does not match
+            np.savez(f, N=np.zeros((2, 3)), H=np.zeros((2, 3)), T=np.zeros((3, 3, 3)),
+                     _digest=np.zeros(32, np.uint8))
+        sets.box_sum_template.cache_clear()
+        assert all(store.load(sets.template_key(*k)) is None for k in first.template)
+        third = box_mrpi.box_sets(A, lo, hi, 1e-6)
+        np.testing.assert_array_equal(first.volume, third.volume)
+        assert all(store.load(sets.template_key(*k)) is not None for k in first.template)
+        sizes = sorted(f.stat().st_size for f in store.path.glob("*.npz"))
+        assert store.prune(budget=sum(sizes) - 1) >= sizes[0]          # least recently used go
+        assert len(list(store.path.glob("*.npz"))) < len(sizes)
+    finally:
+        sets.keep_templates_in(None)
+        sets.box_sum_template.cache_clear()

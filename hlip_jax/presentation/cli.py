@@ -169,7 +169,7 @@ def _use_cache(args) -> None:
             raise UserError(f"--compile-cache {args.compile_cache}: {link}; allowed: a writable "
                             "directory")
         try:
-            compile_cache.enable(Path(args.compile_cache))
+            _enable_caches(Path(args.compile_cache))
         except compile_cache.CacheDirError as err:
             raise UserError(f"--compile-cache {err}; allowed: a writable directory") from None
         return
@@ -185,9 +185,21 @@ def _use_cache(args) -> None:
               file=sys.stderr)
         return
     try:
-        compile_cache.enable(compile_cache.default_dir())
+        _enable_caches(compile_cache.default_dir())
     except compile_cache.CacheDirError as err:
         print(f"{PROG}: note: compilation cache off: {err}", file=sys.stderr)
+
+
+def _enable_caches(path: Path) -> None:
+    """The compilation and trace caches in ``path`` (:func:`compile_cache.enable`) and the
+    invariant sets' facet templates in ``path / "box_templates"``
+    (:func:`hlip_jax.core.sets.keep_templates_in`)."""
+    from hlip_jax.core import sets
+    from hlip_jax.runtime import array_cache, compile_cache
+    compile_cache.enable(path)
+    templates = array_cache.ArrayCache(path / "box_templates")
+    templates.prune()
+    sets.keep_templates_in(templates)
 
 
 def _broken_link(path: Path) -> str | None:
