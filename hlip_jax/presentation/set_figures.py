@@ -5,10 +5,64 @@ from __future__ import annotations
 
 import numpy as np
 
-from hlip_jax.core.sets import as_float64, vertices
+from hlip_jax.core.sets import MRPI, Scaled, Zonotope, as_float64, default_directions, vertices
 
 
 STATE_LABELS = {3: ("c [m]", "p [m]", "v [m/s]"), 2: ("p [m]", "v [m/s]")}
+#: directions whose support points outline a 3-D zonotope (a Fibonacci sphere and the axes)
+OUTLINE_DIRECTIONS = 2048
+
+
+def _zonotope_parts(E):
+    """(c, G, k) when E is the zonotope c + k Gᵀβ, |β| ≤ 1 (a zonotope, an MRPI bracket's outer
+    zonotope, or one of those scaled about its centre), else None."""
+    if isinstance(E, Scaled):
+        inner = _zonotope_parts(E.base)
+        return None if inner is None else (inner[0], inner[1], inner[2] * float(E.s))
+    if isinstance(E, MRPI):
+        E = E.outer
+    if isinstance(E, Zonotope):
+        return as_float64(E.center), as_float64(E.generators).reshape(-1, len(E.center)), 1.0
+    return None
+
+
+def _support_points(c, G, k, D) -> np.ndarray:
+    """argmax_{x ∈ E} dᵀx for each row d of D: c + k Σ_j sign(dᵀg_j) g_j (a vertex of E
+    where d is inside its normal cone)."""
+    return c + k * (np.sign(D @ G.T) @ G)
+
+
+def projected_outline(E, dims) -> np.ndarray:
+    """Points whose convex hull is the projection of E onto the coordinates ``dims`` (2): for
+    a zonotope exactly its vertices, the support points of the projected generators g'_j at
+    directions strictly between consecutive generator normals (no facet enumeration of the
+    full-dimensional set); else the projected vertices of E."""
+    parts = _zonotope_parts(E)
+    if parts is None:
+        return vertices(E)[:, list(dims)]
+    c, G, k = parts
+    g = G[:, list(dims)]
+    g = g[np.linalg.norm(g, axis=1) > 1e-14 * max(np.linalg.norm(g, axis=1).max(), 1e-300)]
+    if len(g) == 0:
+        return c[list(dims)][None]
+    th = np.sort(np.mod(np.arctan2(g[:, 1], g[:, 0])[:, None] + np.array([0.5, 1.5]) * np.pi,
+                        2 * np.pi).ravel())
+    mid = 0.5 * (th + np.r_[th[1:], th[0] + 2 * np.pi])
+    D = np.stack([np.cos(mid), np.sin(mid)], axis=1)
+    return _support_points(c[list(dims)], g, k, D)
+
+
+def outline(E) -> np.ndarray:
+    """Points whose convex hull is drawn for E: for a 3-D zonotope its support points in
+    :data:`OUTLINE_DIRECTIONS` directions (vertices of E, so the drawn hull lies inside E and
+    touches it in each of those directions; a zonotope of hundreds of generators has tens of
+    thousands of vertices, which Qhull would take seconds to find and matplotlib to draw), in
+    2-D the exact vertices (:func:`projected_outline`), else :func:`vertices`."""
+    parts = _zonotope_parts(E)
+    if parts is None or E.dim != 3:
+        return projected_outline(E, (0, 1)) if E.dim == 2 else vertices(E)
+    c, G, k = parts
+    return _support_points(c, G, k, default_directions(3, OUTLINE_DIRECTIONS))
 
 
 def _split_inside(E, samples, tol=1e-9):
@@ -37,7 +91,7 @@ def plot_set_3d(E, samples=None, ax=None, face_color="tab:blue", inside_color="t
 
     if ax is None:
         ax = plt.figure().add_subplot(projection="3d")
-    V = vertices(E)
+    V = outline(E)
     hull = _hull(V)
     faces = [V[t] for t in hull.simplices]
     ax.add_collection3d(Poly3DCollection(faces, facecolor=face_color, alpha=alpha,
@@ -69,7 +123,7 @@ def plot_set_2d(E, samples=None, dims=(0, 1), ax=None, face_color="tab:blue",
 
     if ax is None:
         ax = plt.figure().add_subplot()
-    V = vertices(E)[:, list(dims)]
+    V = projected_outline(E, dims)
     poly = V[_hull(V).vertices]
     ax.fill(*poly.T, color=face_color, alpha=alpha, lw=1)
     if samples is not None:
