@@ -90,20 +90,29 @@ def orders(A: np.ndarray, radius: np.ndarray, eps: float, s_max: int, nil_tol: f
     return s, a, exact, np.stack(sizes, axis=1) if sizes else np.zeros((R, 0))
 
 
-def _generators(A: np.ndarray, radius: np.ndarray, s: int) -> np.ndarray:
-    """The sum's generators ρ_j A^i e_j (s·n, n) in ``truncated_sum``'s order and arithmetic."""
-    G, Ai, gs = np.diag(radius), np.eye(len(radius)), []
+def _generator_norms(A: np.ndarray, radius: np.ndarray, s: int) -> np.ndarray:
+    """The norms (R, s·n) of the sums' generators ρ_j A^i e_j, rows in ``truncated_sum``'s
+    order, of R boxes of half-widths ``radius`` (R, n) with s terms each: the unit generators
+    (A^i e_j)ᵀ scaled by ρ_j, the products ``truncated_sum``'s diag(ρ) (A^i)ᵀ forms (exactly:
+    the other terms of its sums are zeros)."""
+    n, Ai, U = radius.shape[1], np.eye(radius.shape[1]), []
     for _ in range(s):
-        gs.append(G @ Ai.T)
+        U.append(Ai.T)
         Ai = A @ Ai
-    return np.concatenate(gs)
+    G = np.concatenate(U)[None] * np.tile(radius, (1, s))[:, :, None]
+    return np.linalg.norm(G, axis=2)
 
 
-def _template_key(A: np.ndarray, radius: np.ndarray, s: int, sizes: np.ndarray) -> tuple:
-    n = len(radius)
-    n_prefix = sets.prefix_terms(sizes, s) * n if n == 3 else 0
-    keep, keep0 = sets.significant_split(_generators(A, radius, s), n_prefix)
-    return (A.tobytes(), n, s, n_prefix, keep.tobytes(), keep0.tobytes())
+def _template_keys(A: np.ndarray, radius: np.ndarray, s: int, sizes: np.ndarray) -> list:
+    """The template keys (:func:`hlip_jax.core.sets.box_sum_template`'s arguments) of R boxes
+    (``radius`` (R, n), term sizes (R, S)) with s terms each."""
+    n = radius.shape[1]
+    keys = []
+    for rho, gn, sz in zip(radius, _generator_norms(A, radius, s), sizes):
+        n_prefix = sets.prefix_terms(sz, s) * n if n == 3 else 0
+        keep, keep0 = sets.split_norms(gn, n_prefix)
+        keys.append((A.tobytes(), n, s, n_prefix, keep.tobytes(), keep0.tobytes()))
+    return keys
 
 
 def box_sets(A_cl, lo, hi, min_halfwidth: float, eps: float = 1e-5, s_max: int = 500,
@@ -124,9 +133,12 @@ def box_sets(A_cl, lo, hi, min_halfwidth: float, eps: float = 1e-5, s_max: int =
     ok &= s > 0
     centre = np.full((R, n), np.nan)
     offsets, template, volume = [None] * R, [None] * R, np.full(R, np.nan)
+    for order in np.unique(s[ok]):
+        rows = np.flatnonzero(ok & (s == order))
+        for r, key in zip(rows, _template_keys(A, rho[rows], int(order), sizes[rows])):
+            template[r] = key
     for r in np.flatnonzero(ok):
         centre[r] = np.linalg.solve(np.eye(n) - A, c[r])
-        template[r] = _template_key(A, rho[r], int(s[r]), sizes[r])
         _, H, _, T = sets.box_sum_template(*template[r])
         offsets[r] = H @ rho[r]
         rr = functools.reduce(np.multiply.outer, [rho[r]] * n)

@@ -524,9 +524,13 @@ def _unique_directions(N: np.ndarray, decimals: int = 10) -> np.ndarray:
 def significant_generators(G: np.ndarray) -> np.ndarray:
     """Mask (m,) of the generators that count for the facets: norm above 1e-14 × the largest
     (a term A^i W that has decayed to round-off adds no facet direction)."""
-    gn = np.linalg.norm(G, axis=1)
-    if not G.shape[0] or not gn.max() > 0:
-        return np.zeros(G.shape[0], bool)
+    return significant_norms(np.linalg.norm(G, axis=1))
+
+
+def significant_norms(gn: np.ndarray) -> np.ndarray:
+    """:func:`significant_generators` from the generators' norms ``gn`` (m,)."""
+    if not gn.shape[0] or not gn.max() > 0:
+        return np.zeros(gn.shape[0], bool)
     return gn > 1e-14 * gn.max()
 
 
@@ -577,9 +581,13 @@ def zonotope_hrep(z: Zonotope, n_prefix: int = 0) -> Zonotope:
 def significant_split(G: np.ndarray, n_prefix: int) -> tuple[np.ndarray, np.ndarray]:
     """(keep, keep0): :func:`significant_generators` of G, and of its first ``n_prefix``
     generators taken alone (empty without a prefix: 0 < n_prefix < m does not hold)."""
-    keep = significant_generators(G)
-    return keep, (significant_generators(G[:n_prefix]) if 0 < n_prefix < G.shape[0]
-                  else keep[:0])
+    return split_norms(np.linalg.norm(G, axis=1), n_prefix)
+
+
+def split_norms(gn: np.ndarray, n_prefix: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`significant_split` from the generators' norms ``gn`` (m,)."""
+    keep = significant_norms(gn)
+    return keep, significant_norms(gn[:n_prefix]) if 0 < n_prefix < len(gn) else keep[:0]
 
 
 def _facet_normals(G: np.ndarray, n_prefix: int, keep: np.ndarray,
