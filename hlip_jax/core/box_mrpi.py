@@ -174,11 +174,6 @@ def _gauges(N, h, centre, x, rows: int):
     return jax.lax.map(block, (split(h), split(centre), split(x))).reshape(R, K)
 
 
-def _pad_rows(a: np.ndarray, size: int, fill) -> np.ndarray:
-    pad = [(0, size - a.shape[0])] + [(0, 0)] * (a.ndim - 1)
-    return np.pad(a, pad, constant_values=fill)
-
-
 def gauges(bs: BoxSets, rows: np.ndarray, points: list) -> list:
     """The gauge of each of ``points[i]`` (k_i, n) in the inner set of row ``rows[i]`` (all
     rows ok and of one template), in one jitted call: a list of (k_i,) arrays."""
@@ -188,13 +183,11 @@ def gauges(bs: BoxSets, rows: np.ndarray, points: list) -> list:
     Rb = sets.bucket(len(rows))
     blk = int(max(1, min(Rb, GAUGE_BLOCK // (Kb * Fb))))
     blk = 1 << (blk.bit_length() - 1)                        # a power of two dividing Rb
-    x = np.zeros((Rb, Kb, n))
-    for i, p in enumerate(points):
-        x[i, :len(p)] = p
-    h = _pad_rows(np.pad(np.stack([bs.offsets[r] for r in rows]), ((0, 0), (0, Fb - F)),
-                         constant_values=1.0), Rb, 1.0)
-    g = np.asarray(_gauges(np.pad(N, ((0, Fb - F), (0, 0))), h,
-                           _pad_rows(bs.centre[rows], Rb, 0.0), x, rows=blk), np.float64)
+    x, h, c, Np = np.zeros((Rb, Kb, n)), np.ones((Rb, Fb)), np.zeros((Rb, n)), np.zeros((Fb, n))
+    for i, (r, p) in enumerate(zip(rows, points)):      # padding: inert facets, zero points
+        x[i, :len(p)], h[i, :F] = p, bs.offsets[r]
+    c[:len(rows)], Np[:F] = bs.centre[rows], N
+    g = np.asarray(_gauges(Np, h, c, x, rows=blk), np.float64)
     return [g[i, :len(p)] for i, p in enumerate(points)]
 
 
