@@ -83,6 +83,24 @@ def test_membership_decides_as_the_float64_gauge(n):
         assert cov.n[r] == len(P)
 
 
+def test_rows_split_over_several_calls_give_the_same_coverage(monkeypatch):
+    """A template's rows go to the kernel at most ROWS_PER_CALL at a time (bounding the host's
+    padded arrays for chunks of thousands of scenarios): two rows per call, or all at once,
+    give equal fractions."""
+    rng = np.random.default_rng(5)
+    A = _stable(rng, 3)
+    lo, hi = _boxes(rng, 7, 3)
+    lo[3:], hi[3:] = lo[3], hi[3]               # four equal boxes: one template for them
+    bs = box_mrpi.box_sets(A, lo, hi, 1e-6)
+    assert len(set(bs.template)) == 4
+    pts = [rng.normal(0, 0.03, (int(rng.integers(1, 30)), 3)) for _ in range(7)]
+    whole = box_mrpi.coverage(bs, pts)
+    monkeypatch.setattr(box_mrpi, "ROWS_PER_CALL", 2)
+    split = box_mrpi.coverage(bs, pts)
+    np.testing.assert_array_equal(whole.inner, split.inner)
+    np.testing.assert_array_equal(whole.outer, split.outer)
+
+
 def test_a_failed_row_marks_only_itself():
     """A box with a NaN bound and one whose order exceeds s_max get ok = False and NaN
     coverage and volume; the other rows are those of a batch without them."""

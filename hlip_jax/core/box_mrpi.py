@@ -157,6 +157,9 @@ def compute_tolerance(tol: float) -> float:
 
 #: (rows × points × facets) entries per block of :func:`_gauges`
 GAUGE_BLOCK = 1 << 22
+#: rows per call of :func:`gauges` at most (bounds the host's padded (rows × facets) offsets:
+#: 512 × 32,768 float64 = 128 MiB), so a chunk of thousands of scenarios costs several calls
+ROWS_PER_CALL = 512
 
 
 @functools.partial(jax.jit, static_argnames=("rows",))
@@ -201,7 +204,8 @@ class Covered(NamedTuple):
 
 def coverage(bs: BoxSets, points: list, tol: float = 1e-9) -> Covered:
     """:class:`Covered` of ``points[r]`` (k_r, n) in row r's bracket, every template's rows in
-    one call (:func:`gauges`); ``tol`` relative, floored by :func:`compute_tolerance`."""
+    one call (:func:`gauges`) of at most :data:`ROWS_PER_CALL` rows; ``tol`` relative, floored
+    by :func:`compute_tolerance`."""
     R = len(points)
     tol = compute_tolerance(tol)
     inner, outer = np.full(R, np.nan), np.full(R, np.nan)
@@ -209,7 +213,9 @@ def coverage(bs: BoxSets, points: list, tol: float = 1e-9) -> Covered:
     groups: dict = {}
     for r in np.flatnonzero(bs.ok & (count > 0)):
         groups.setdefault(bs.template[r], []).append(r)
-    for rows in groups.values():
+    parts = [rows[i:i + ROWS_PER_CALL] for rows in groups.values()
+             for i in range(0, len(rows), ROWS_PER_CALL)]
+    for rows in parts:
         for r, g in zip(rows, gauges(bs, np.asarray(rows), [points[r] for r in rows])):
             k = 1.0 if bs.alpha[r] == 0 else 1.0 / (1.0 - bs.alpha[r])
             inner[r] = np.mean(g <= 1.0 + tol)
