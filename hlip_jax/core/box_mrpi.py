@@ -34,7 +34,9 @@ puts x in F_s when g ≤ 1 + tol and in the outer set when g ≤ (1 + tol) / (1 
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
+import os
 from typing import NamedTuple
 
 import jax
@@ -42,6 +44,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from hlip_jax.core import sets
+
+
+#: threads that build a batch's facet templates at most
+TEMPLATE_THREADS = 8
 
 
 class BoxSets(NamedTuple):
@@ -115,6 +121,18 @@ def _template_keys(A: np.ndarray, radius: np.ndarray, s: int, sizes: np.ndarray)
     return keys
 
 
+def templates(keys) -> dict:
+    """{key: :func:`hlip_jax.core.sets.box_sum_template` (*key)} for a set of template keys,
+    built in up to :data:`TEMPLATE_THREADS` threads (numpy's large array operations, most of a
+    template's cost, release the interpreter lock; a 1024-scenario chunk has a few dozen)."""
+    keys = list(keys)
+    threads = min(TEMPLATE_THREADS, os.cpu_count() or 1, len(keys))
+    if threads <= 1:
+        return {k: sets.box_sum_template(*k) for k in keys}
+    with concurrent.futures.ThreadPoolExecutor(threads) as pool:
+        return dict(zip(keys, pool.map(lambda k: sets.box_sum_template(*k), keys)))
+
+
 def box_sets(A_cl, lo, hi, min_halfwidth: float, eps: float = 1e-5, s_max: int = 500,
              nil_tol: float = 1e-10) -> BoxSets:
     """The brackets of the boxes [lo_r, hi_r] (R, n) under the Schur-stable ``A_cl`` (n, n)
@@ -137,9 +155,10 @@ def box_sets(A_cl, lo, hi, min_halfwidth: float, eps: float = 1e-5, s_max: int =
         rows = np.flatnonzero(ok & (s == order))
         for r, key in zip(rows, _template_keys(A, rho[rows], int(order), sizes[rows])):
             template[r] = key
+    built = templates({template[r] for r in np.flatnonzero(ok)})
     for r in np.flatnonzero(ok):
         centre[r] = np.linalg.solve(np.eye(n) - A, c[r])
-        _, H, _, T = sets.box_sum_template(*template[r])
+        _, H, _, T = built[template[r]]
         offsets[r] = H @ rho[r]
         rr = functools.reduce(np.multiply.outer, [rho[r]] * n)
         k = 1.0 if exact[r] else 1.0 / (1.0 - alpha[r])
