@@ -563,3 +563,13 @@ def test_summary_coverage_follows_the_sweeps_warmup(tmp_path):
     walked = [r for r in a if r["status"] == "ok"]
     assert walked and all(0.0 <= float(r["cov_x_outer"]) <= 1.0 for r in walked)
     assert all(math.isnan(float(r["cov_x_outer"])) for r in b)
+
+
+def test_a_run_times_its_stages(tmp_path):
+    """RunResult.stages: the wall seconds of the simulation, the per-scenario analysis and
+    summary.csv with coverage.csv, each >= 0, together within the run's own seconds."""
+    res = runner.run_sweep(_tiny(), tmp_path / "r", batch=3, progress=False,
+                           simulate=fake_simulate)
+    assert set(res.stages) == {"simulation", "analysis", "summary.csv and coverage.csv"}
+    assert all(v >= 0.0 for v in res.stages.values())
+    assert sum(res.stages.values()) <= res.seconds + 1e-6

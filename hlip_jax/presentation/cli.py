@@ -43,6 +43,7 @@ import os
 import re
 import signal
 import sys
+import time
 from pathlib import Path
 
 from hlip_jax import plants
@@ -601,11 +602,17 @@ def cmd_run(args) -> int:
         _tick_logs(out, chosen)
     if args.render is not None:
         _render_runs(out, drawn)
+    stages = dict(res.stages)
     if not args.no_report:
+        t_report = time.monotonic()
         with runner.on_host():
             html, md = report.write_report(out)
+        stages["report"] = time.monotonic() - t_report
         print(f"report: {html}")
         print(f"        {md}")
+    if not args.quiet:
+        print(f"{PROG}: {sw.name}: " + ", ".join(f"{k} {v:.1f} s" for k, v in stages.items()),
+              file=sys.stderr)
     return EXIT_OK
 
 

@@ -35,6 +35,9 @@ class RunResult:
     chunks_skipped: int      # already present (resume)
     complete: bool
     seconds: float
+    #: wall seconds per stage of this call: "simulation" (compiles included), "analysis" (the
+    #: chunks' per-scenario metrics), "summary.csv and coverage.csv"
+    stages: dict = dataclasses.field(default_factory=dict)
 
 
 class Progress:
@@ -343,9 +346,10 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
     done = sum(b - a for i, (a, b) in enumerate(ranges) if i in good)
     bar.update(done, "resuming" if done else "compiling")
     ran = skipped = 0
+    stages = {"simulation": 0.0, "analysis": 0.0}
     try:
         ran, skipped, done = _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks,
-                                         with_coverage, good, chash, sw.analysis.warmup)
+                                         with_coverage, good, chash, sw.analysis.warmup, stages)
     except BaseException:
         # interrupted or failed: finished chunks stay; the manifest says the run is incomplete
         man.update(status="incomplete", end_time=store.utc_now(),
@@ -358,10 +362,12 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
                seconds=man.get("seconds", 0.0) + (time.monotonic() - t0))
     store.write_manifest(out, man)
     if complete:
+        t1 = time.monotonic()
         with on_host():
             store.write_summary(out)
             store.write_coverage(out)
-    return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0)
+        stages["summary.csv and coverage.csv"] = time.monotonic() - t1
+    return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0, stages)
 
 
 def _verify_stored(out: Path, ranges, bar, run_id: str) -> set[int]:
@@ -439,10 +445,11 @@ def _x64() -> bool:
 
 
 def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_coverage, good,
-                run_id: str, warmup: int):
+                run_id: str, warmup: int, stages: dict):
     """Simulate and store every chunk not in ``good`` (verified stored chunk indices, which
     grows as chunks are written); returns (chunks run, chunks skipped, scenarios done).
-    ``warmup``: the sweep's ``[analysis]`` warm-up, for the summary's coverage metrics."""
+    ``warmup``: the sweep's ``[analysis]`` warm-up, for the summary's coverage metrics;
+    ``stages``: its "simulation" and "analysis" wall seconds grow by each chunk's."""
     ran = skipped = 0
     for i, (a, b) in enumerate(ranges):
         p = store.chunk_path(out, i)
@@ -456,8 +463,10 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
             budget = None if max_chunks is None else max_chunks - ran - 1
             # listened to with or without --quiet, so that the loop runs the same segmented
             # program either way: the progress output must not change the numbers
+            t_sim = time.monotonic()
             with progress.listening(_chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget)):
                 log = sim(chunk_cfgs)
+            stages["simulation"] += time.monotonic() - t_sim
         except (ImportError, NotImplementedError) as err:
             plants = sorted({c.plant for c in chunk_cfgs})
             raise store.StoreError(f"the closed loop for plant {', '.join(plants)} is not available: "
@@ -465,8 +474,10 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
         arrays = store.log_to_arrays(log, b - a)
         arrays["index"] = np.arange(a, b, dtype=np.int64)
         arrays[store.RUN_ID] = np.full(b - a, run_id)
+        t_met = time.monotonic()
         mets = chunk_metrics(arrays, [metrics.push_windows(c) for c in chunk_cfgs[:b - a]],
                              with_coverage, warmup=warmup)
+        stages["analysis"] += time.monotonic() - t_met
         for k in metrics.SUMMARY_METRICS:
             arrays[f"metric.{k}"] = np.asarray([m[k] for m in mets], np.float64)
         store.save_npz_atomic(p, arrays)
