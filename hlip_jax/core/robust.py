@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import errno
 import os
 import stat
 from typing import NamedTuple
@@ -216,8 +217,10 @@ def read_hull(path) -> tuple:
     path = os.fspath(path)
     try:
         st = os.stat(path)
-    except OSError:
-        raise ValueError(f"{path}: file not found") from None
+    except OSError as err:      # a name too long or a NUL is no "not found"
+        shown = path if len(path) <= 200 else f"{path[:200]}... ({len(path)} characters)"
+        why = "file not found" if err.errno == errno.ENOENT else f"unusable ({err.strerror})"
+        raise ValueError(f"{shown}: {why}") from None
     if not stat.S_ISREG(st.st_mode):
         raise ValueError(f"{path}: not a regular file (a hull W file is a CSV file)")
     if st.st_size > HULL_FILE_MAX_BYTES:

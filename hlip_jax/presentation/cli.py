@@ -77,6 +77,53 @@ def _raise_terminated(signum, frame):
     raise Terminated(signum)
 
 
+class NamedStdout:
+    """Standard output whose write errors name it: ``hlip-sweep list > /dev/full`` says
+    ``standard output: ...``, not a bare ``No space left on device`` that reads as the results
+    directory's.  A broken pipe is passed on as it is (a reader that went away)."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def _named(self, err: OSError) -> UserError:
+        return UserError(f"standard output: cannot write it ({err.strerror or err}); allowed: a "
+                         "terminal, a pipe or a file that can take the output")
+
+    def write(self, text):
+        """Write ``text``; an OSError (not a broken pipe) becomes a UserError naming stdout."""
+        try:
+            return self.stream.write(text)
+        except BrokenPipeError:
+            raise
+        except OSError as err:
+            raise self._named(err) from None
+
+    def flush(self):
+        """Flush; an OSError (not a broken pipe) becomes a UserError naming stdout."""
+        try:
+            self.stream.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as err:
+            raise self._named(err) from None
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+
+@contextlib.contextmanager
+def _stdout_named():
+    """Within: ``sys.stdout`` is a :class:`NamedStdout`, flushed on the way out (so a full
+    disk under ``> FILE`` is found here, not at exit); the stream is restored after."""
+    stream = sys.stdout
+    sys.stdout = NamedStdout(stream)
+    try:
+        yield
+        sys.stdout.flush()
+    finally:
+        sys.stdout = stream
+
+
 @contextlib.contextmanager
 def _sigterm_unwinds():
     """Within the block, each of :data:`ENDING_SIGNALS` raises :class:`Terminated` (in the main
@@ -167,8 +214,9 @@ def _use_cache(args) -> None:
                             "(or --no-compile-cache)")
         link = _broken_link(Path(args.compile_cache))
         if link:
-            raise UserError(f"--compile-cache {args.compile_cache}: {link}; allowed: a writable "
-                            "directory")
+            from hlip_jax.sweepio.sweep import shown_path
+            raise UserError(f"--compile-cache {shown_path(args.compile_cache)}: {link}; allowed: "
+                            "a writable directory")
         try:
             _enable_caches(Path(args.compile_cache))
         except compile_cache.CacheDirError as err:
@@ -182,8 +230,9 @@ def _use_cache(args) -> None:
     link = _broken_link(compile_cache.default_dir())
     if link:
         trace_cache.disable()
-        print(f"{PROG}: note: compilation cache off: {compile_cache.default_dir()}: {link}",
-              file=sys.stderr)
+        from hlip_jax.sweepio.sweep import shown_path
+        print(f"{PROG}: note: compilation cache off: {shown_path(compile_cache.default_dir())}: "
+              f"{link}", file=sys.stderr)
         return
     try:
         _enable_caches(compile_cache.default_dir())
@@ -206,8 +255,11 @@ def _enable_caches(path: Path) -> None:
 def _broken_link(path: Path) -> str | None:
     """Why ``path`` is a symbolic link that leads to no directory (a loop, or dangling), or
     None (creating it would only say "File exists")."""
-    if not path.is_symlink() or path.exists():
-        return None
+    try:
+        if not path.is_symlink() or path.exists():
+            return None
+    except OSError as err:      # e.g. a name too long for the file system
+        return f"an unusable path ({err.strerror})"
     try:
         os.stat(path)
     except OSError as err:
@@ -557,7 +609,8 @@ def cmd_run(args) -> int:
     try:
         not_dir = out.exists() and not out.is_dir()
     except OSError as err:      # e.g. a name too long for the file system
-        raise UserError(f"--out {out}: unusable as a results directory: "
+        from hlip_jax.sweepio.sweep import shown_path
+        raise UserError(f"--out {shown_path(out)}: unusable as a results directory: "
                         f"{err.strerror or err}") from None
     if not_dir:
         raise UserError(f"--out {out}: exists and is not a directory")
@@ -1352,7 +1405,7 @@ def main(argv=None) -> int:
     try:
         xla_flags.apply()    # reproducible GPU runs (before JAX's backend starts)
         _check_environment(args)
-        with _sigterm_unwinds():
+        with _sigterm_unwinds(), _stdout_named():
             return handler(args)
     except (UserError, SweepError, StoreError, ReportError) as err:
         return _fail(str(err), EXIT_USAGE)

@@ -99,6 +99,24 @@ def cpu_devices(flags: str) -> int:
 #: the most CPU devices a device count may ask for (each is a thread pool's worth of work)
 MAX_CPU_DEVICES = 4096
 
+#: the most threads a user's pool size (:data:`POOL_VARS`) may ask for: XLA's CPU client starts
+#: them all at once (``NPROC=100000`` ran 300 s without a word before it was killed)
+MAX_POOL_THREADS = 4096
+
+
+def pool_problem(environ: MutableMapping[str, str] = os.environ) -> str | None:
+    """Why the user's pool size in ``environ`` (:data:`POOL_VARS`) would stall XLA's CPU
+    client, or None: a count in ASCII digits above :data:`MAX_POOL_THREADS`.  One line naming
+    the variable and what is allowed."""
+    for v in POOL_VARS:
+        text = environ.get(v, "")
+        if _is_count(text) and int(text) > MAX_POOL_THREADS:
+            return (f"{v}={text[:40]!r}: too many threads for XLA's CPU thread pool (it starts "
+                    f"them all at once); allowed: an integer from 1 to {MAX_POOL_THREADS} in "
+                    f"ASCII digits, or unset {v}")
+    return None
+
+
 #: the values XLA reads as a boolean flag's (lower-cased)
 _BOOLS = ("true", "false", "1", "0")
 
@@ -153,8 +171,9 @@ def apply(environ: MutableMapping[str, str] = os.environ, cores: int | None = No
     reads the variables when the backend starts).  ``cores`` defaults to
     :func:`usable_cores`.  A user's ``XLA_FLAGS`` that XLA would abort on (:func:`problem`)
     is refused with :class:`FlagsError` (the CLI reports it as one line on stderr, exit 2),
-    ``environ`` left as it was."""
-    why = problem(environ.get("XLA_FLAGS", "")) or refused(environ.get("XLA_FLAGS", ""), environ)
+    ``environ`` left as it was; so is a pool size XLA would stall on (:func:`pool_problem`)."""
+    why = (problem(environ.get("XLA_FLAGS", "")) or pool_problem(environ)
+           or refused(environ.get("XLA_FLAGS", ""), environ))
     if why is not None:
         raise FlagsError(why)
     cores = usable_cores() if cores is None else cores

@@ -248,8 +248,14 @@ def _check_identity(p: Path, man: dict) -> None:
     against the layout digest the identity records.  A manifest without ``run_identity``
     (written before it, or with it removed) is checked against :func:`legacy_identity`."""
     extra, chash = man.get("run_identity"), man.get("config_hash")
+    against = "its config_hash"
+    if chash is None:           # deleted: the run id its chunks record stands in for it
+        chash, against = chunks_run_id(p.parent, man), "the run id its chunks record"
+        if chash is None:
+            return
     if not isinstance(chash, str):
-        return
+        raise StoreError(f"{p}: damaged manifest: 'config_hash' is {chash!r}; expected the "
+                         "run's SHA-256 as a string; rerun the sweep with --overwrite")
     if not isinstance(extra, dict):         # written before run_identity (or it was removed)
         extra = legacy_identity(man["batch"], man.get("x64"), man.get("with_coverage", True))
     if extra.get("batch", man["batch"]) != man["batch"]:
@@ -268,7 +274,7 @@ def _check_identity(p: Path, man: dict) -> None:
     if sweep_mod.dicts_hash(man["configs"], extra) != chash:
         for i in range(len(man["configs"])):        # a value not allowed: named as before
             stored_config(man["configs"], i, p.parent)
-        raise StoreError(f"{p}: damaged manifest: its configs do not match its config_hash "
+        raise StoreError(f"{p}: damaged manifest: its configs do not match {against} "
                          "(edited by hand, or of another run?), so the stored results cannot "
                          "be labelled; rerun the sweep with --overwrite")
     _VERIFIED[key] = True
@@ -492,6 +498,19 @@ def _run_chunks_only(out_dir, man: dict) -> list[tuple[int, int]]:
                          f"chunk_00000.npz to chunk_{max(len(ranges) - 1, 0):05d}.npz); "
                          "remove it")
     return ranges
+
+
+def chunks_run_id(out_dir, man: dict) -> str | None:
+    """The run id the first stored chunk of manifest ``man``'s run records that has one (None:
+    no chunk stored, or none records it)."""
+    n, batch = man.get("n_scenarios"), man.get("batch")
+    for i in range(len(chunk_ranges(n, batch))):
+        p = chunk_path(out_dir, i)
+        if os.path.lexists(p):
+            rid = _run_id_of(p)
+            if isinstance(rid, str):
+                return rid
+    return None
 
 
 def _run_id_of(path) -> str | None:

@@ -810,6 +810,13 @@ def _expand_doc(doc, text, source, overrides, limit, default_name) -> Sweep:
         raise SweepError(msg if msg.startswith(source) else f"{source}: {msg}") from None
 
 
+def shown_path(path, n: int = 200) -> str:
+    """``path`` (any path-like) for a message: as it is, or cut to ``n`` characters with its
+    length said (a 5,000-character path does not fill the screen)."""
+    s = os.fspath(path)
+    return s if len(s) <= n else f"{s[:n]}... ({len(s)} characters)"
+
+
 def _short(s: str, n: int = 40) -> str:
     """``repr`` of ``s``, cut to about ``n`` characters for messages."""
     return repr(s) if len(s) <= n else repr(s[:n]) + f"... ({len(s)} characters)"
@@ -1151,7 +1158,8 @@ def load_sweep(path, *, plant: str | None = None, duration: float | None = None,
     ``paths`` and ``description`` are the file's where it sets them, else the parent's; of the
     ``grid``, the file's ``product`` replaces the parent's ``product`` and its ``zip`` the
     parent's ``zip``, each kind the file leaves out inherited (a variant that only changes the
-    seeds keeps its parent's zipped axes); the name is always the file's own (or its stem).  Chains of up to
+    seeds keeps its parent's zipped axes); the ``[analysis]`` table is merged key by key (the
+    file's keys win); the name is always the file's own (or its stem).  Chains of up to
     :data:`MAX_EXTENDS` files, no cycles.  The manifest keeps every file's text."""
     p = Path(path)
     doc, text = _resolve_extends(p, str(path), ())
@@ -1248,6 +1256,9 @@ def _resolve_extends(p: Path, source: str, chain: tuple) -> tuple[dict, str]:
     if not isinstance(parent, str) or not parent.strip():
         raise SweepError(f"{source}: extends: expected the path of another sweep file, got "
                          f"{_tname(parent)} {_fmt(parent)}")
+    if "\0" in parent:       # the system cannot take it as a path (ValueError in resolve)
+        raise SweepError(f"{source}: extends: {_fmt(parent)} holds a NUL character; allowed: "
+                         "the path of another sweep file")
     q = p.parent / (parent if parent.endswith(".toml") else parent + ".toml")
     key = q.resolve()
     if key in chain or key == p.resolve():
@@ -1267,7 +1278,7 @@ def _resolve_extends(p: Path, source: str, chain: tuple) -> tuple[dict, str]:
         both_tables = isinstance(v, dict) and isinstance(merged.get(k), dict)
         if k == "base" and both_tables:
             merged[k] = _deep_merge(merged[k], v)
-        elif k == "grid" and both_tables:
+        elif k in ("grid", "analysis") and both_tables:
             merged[k] = {**merged[k], **v}
         else:
             merged[k] = v
