@@ -215,9 +215,11 @@ def read_hull(path) -> tuple:
     v [m/s] (what ``hlip-sweep whull`` writes), as two (N_i, 3) arrays.  ValueError naming the
     file and line when it is missing or malformed."""
     path = os.fspath(path)
+    if "\0" in path:
+        raise ValueError(f"{path!r}: holds a NUL character; allowed: the path of a CSV file")
     try:
         st = os.stat(path)
-    except OSError as err:      # a name too long or a NUL is no "not found"
+    except OSError as err:      # a name too long is no "not found"
         shown = path if len(path) <= 200 else f"{path[:200]}... ({len(path)} characters)"
         why = "file not found" if err.errno == errno.ENOENT else f"unusable ({err.strerror})"
         raise ValueError(f"{shown}: {why}") from None

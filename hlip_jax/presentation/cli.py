@@ -1036,8 +1036,10 @@ def cmd_wbox(args) -> int:
         frame, w, groups = robust.w_from_coverage(rows, args.method, args.group)
     except store.OtherRunError as err:      # says how to rewrite it
         raise UserError(str(err)) from None
-    except store.StoreError as err:
-        raise UserError(f"{err} (write it with: hlip-sweep coverage {d})") from None
+    except store.StoreError as err:     # advice added where the message gives none
+        advice = ("" if "hlip-sweep coverage" in str(err)
+                  else f" (write it with: hlip-sweep coverage {d})")
+        raise UserError(f"{err}{advice}") from None
     except robust.NoWError as err:
         why = _no_samples_why(d)
         shown = str(err).split(" (")[0] + why if why else str(err)

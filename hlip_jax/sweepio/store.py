@@ -121,7 +121,11 @@ def write_atomic(path, data: bytes | str) -> None:
             fh.write(data.encode() if isinstance(data, str) else data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except IsADirectoryError as err:    # named as the file it stands for, not the temporary
+            raise IsADirectoryError(err.errno, "a directory stands where this file is written; "
+                                    "remove it", str(path)) from None
     except BaseException:
         try:
             os.unlink(tmp)
@@ -368,9 +372,16 @@ def chunk_files(out_dir) -> list[Path]:
 _CORRUPT = (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile, zlib.error)
 
 
+#: the first bytes of a zip archive (an .npz file): a local file header, or an empty archive
+ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
+
+
 def _read_npz(path) -> dict[str, np.ndarray]:
     """Every array of an .npz file, read in full (so every CRC-32 is checked); raises one of
     :data:`_CORRUPT` if it cannot."""
+    with open(path, "rb") as fh:    # np.load reads any other file as a pickle
+        if fh.read(4) not in ZIP_MAGIC:
+            raise ValueError("not an .npz file: it does not begin as a zip archive does")
     with np.load(path, allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
 
@@ -992,6 +1003,9 @@ def read_coverage(out_dir) -> list[dict]:
     absent."""
     p = Path(out_dir) / COVERAGE
     if not p.is_file():
+        if os.path.lexists(p):      # a directory, a device, a link to one: never opened
+            raise StoreError(f"{p}: not a regular file (a coverage table is a CSV file); "
+                             f"rewrite it with `hlip-sweep coverage {out_dir}`")
         raise StoreError(f"{out_dir}: no {COVERAGE}")
     try:
         head, rows = _read_csv_table(p)
