@@ -47,6 +47,7 @@ import contextlib
 import csv
 import datetime as _dt
 import fcntl
+import hashlib
 import io
 import json
 import math
@@ -983,6 +984,29 @@ def _run_id(out_dir) -> str:
     return f"sha256:{run_id}" if isinstance(run_id, str) else ""
 
 
+def row_check(run_id: str, cells: list[str]) -> str:
+    """The check of one coverage.csv row that its run cell records after ``#``: 16 hex digits
+    of the SHA-256 of the run id and the row's other cells as written (a number edited by
+    hand, the run id kept, no longer matches)."""
+    text = "\x1f".join([run_id, *cells])
+    return hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()[:16]
+
+
+def _edited_row(p: Path, run_id: str) -> int | None:
+    """The line of ``coverage.csv`` ``p`` whose cells no longer match the check its run cell
+    records (:func:`row_check`), or None; a row without a check is such a line too."""
+    with open(p, newline="", encoding="utf-8-sig") as fh:
+        table = list(csv.reader(fh))
+    k = table[0].index(COVERAGE_RUN)
+    for line, cells in enumerate(table[1:], start=2):
+        if len(cells) != len(table[0]):
+            return line
+        rid, _, check = cells[k].partition("#")
+        if check != row_check(rid, cells[:k] + cells[k + 1:]):
+            return line
+    return None
+
+
 def write_coverage_rows(out_dir, rows: list[dict]) -> Path:
     """Write ``rows`` (of :func:`coverage_rows`) as the directory's ``coverage.csv``; each row
     names the run it comes from (:data:`COVERAGE_RUN`), which :func:`read_coverage` checks."""
@@ -992,7 +1016,8 @@ def write_coverage_rows(out_dir, rows: list[dict]) -> Path:
     wr = csv.writer(buf, lineterminator="\n")
     wr.writerow(cov.COLUMNS + (COVERAGE_RUN,))
     for r in rows:
-        wr.writerow([_cell(r[c]) for c in cov.COLUMNS] + [run_id])
+        cells = [_cell(r[c]) for c in cov.COLUMNS]
+        wr.writerow(cells + [f"{run_id}#{row_check(run_id, cells)}" if run_id else ""])
     p = Path(out_dir) / COVERAGE
     write_atomic(p, buf.getvalue())
     return p
@@ -1021,12 +1046,19 @@ def read_coverage(out_dir) -> list[dict]:
         raise OtherRunError(f"{p}: names no run (no column {COVERAGE_RUN!r}: written by an older "
                             f"version, or not by this run); rewrite it with `hlip-sweep coverage "
                             f"{out_dir}`")
-    other = next((str(r[COVERAGE_RUN]) for r in rows if str(r[COVERAGE_RUN]) != run_id),
-                 None) if run_id else None
+    ids = [str(r[COVERAGE_RUN]).partition("#")[0] for r in rows]
+    other = next((i for i in ids if i != run_id), None) if run_id else None
     if other is not None:
         raise OtherRunError(f"{p}: written by another run (run id {other[7:19] or 'none'}, this "
                             f"run's {run_id[7:19]}: copied from elsewhere?); rewrite it with "
                             f"`hlip-sweep coverage {out_dir}`")
+    line = _edited_row(p, run_id) if run_id else None
+    if line is not None:
+        raise OtherRunError(f"{p}: line {line}: its cells do not match the check its "
+                            f"{COVERAGE_RUN!r} cell records (edited by hand, or written by an "
+                            f"older version); rewrite it with `hlip-sweep coverage {out_dir}`")
+    for r, i in zip(rows, ids):
+        r[COVERAGE_RUN] = i
     return rows
 
 
