@@ -1046,7 +1046,7 @@ def read_coverage(out_dir) -> list[dict]:
         raise OtherRunError(f"{p}: names no run (no column {COVERAGE_RUN!r}: written by an older "
                             f"version, or not by this run); rewrite it with `hlip-sweep coverage "
                             f"{out_dir}`")
-    ids = [str(r[COVERAGE_RUN]).partition("#")[0] for r in rows]
+    ids = [str(r.get(COVERAGE_RUN, "")).partition("#")[0] for r in rows]
     other = next((i for i in ids if i != run_id), None) if run_id else None
     if other is not None:
         raise OtherRunError(f"{p}: written by another run (run id {other[7:19] or 'none'}, this "
@@ -1057,8 +1057,9 @@ def read_coverage(out_dir) -> list[dict]:
         raise OtherRunError(f"{p}: line {line}: its cells do not match the check its "
                             f"{COVERAGE_RUN!r} cell records (edited by hand, or written by an "
                             f"older version); rewrite it with `hlip-sweep coverage {out_dir}`")
-    for r, i in zip(rows, ids):
-        r[COVERAGE_RUN] = i
+    for r, i in zip(rows, ids):     # the run id alone, as before the check was added
+        if COVERAGE_RUN in r:
+            r[COVERAGE_RUN] = i
     return rows
 
 
