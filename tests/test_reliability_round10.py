@@ -189,3 +189,16 @@ def test_an_edited_coverage_row_is_refused_by_wbox_and_rewritten_by_report(done,
     assert code == 0, err
     assert "do not match the check" in err and "rewritten" in err
     assert cov.read_bytes() == own
+
+
+def test_a_damaged_analysis_entry_names_the_manifest_once(done, capsys):
+    """T54: manifest `analysis = {"q": "x"}` gave `manifest.json: manifest.json analysis.q:
+    ...` (the file named twice, no advice); it now reads as a damaged manifest with what to
+    do, and removing the entry gives the defaults."""
+    _edit_manifest(done, lambda m: m.__setitem__("analysis", {"q": "x"}))
+    line = _one_line_error(*cli(capsys, "coverage", done)[::2])
+    assert line.count("manifest.json") == 1 and "damaged manifest: analysis.q" in line
+    assert "remove its 'analysis' entry" in line
+    _edit_manifest(done, lambda m: m.pop("analysis"))
+    code, _, err = cli(capsys, "coverage", done)
+    assert code == 0, err

@@ -900,9 +900,11 @@ def analysis_settings(out_dir):
     from hlip_jax.analysis import settings
     raw = read_manifest(out_dir).get("analysis")
     try:
-        return settings.from_dict(raw, "manifest.json analysis")
+        return settings.from_dict(raw, "analysis")
     except ValueError as err:
-        raise StoreError(f"{Path(out_dir) / MANIFEST}: {err}") from None
+        raise StoreError(f"{Path(out_dir) / MANIFEST}: damaged manifest: {err}; remove its "
+                         "'analysis' entry to use the defaults, or rerun the sweep with "
+                         "--overwrite") from None
 
 
 #: runs per worker process of :func:`coverage_rows` (below two workers' worth: in-process)
