@@ -2,7 +2,8 @@
 
     python benchmarks/validation_report.py VALIDATION_DIR [SPEEDS_DIR] --figure FIG.png
 
-VALIDATION_DIR holds a run of sweeps/cassie_validation.toml, SPEEDS_DIR one of
+VALIDATION_DIR holds a run of sweeps/cassie_validation.toml (or of a sweep that extends it with a
+grid: ``--variants`` then prints the tables and a comparison per grid point), SPEEDS_DIR one of
 docs/experiments/cassie_speeds_val.toml.  Prints Markdown: success rates with 95 % Clopper–Pearson
 intervals (pushes by force and side, with recovery = back within 0.15 m of the path within 10
 steps and staying there; noisy runs by path; the speed × radius envelope), and for the
@@ -13,6 +14,7 @@ the command.  ``--figure`` draws the envelope's success map.
 from __future__ import annotations
 
 import argparse
+import csv
 import math
 import pathlib
 import re
@@ -137,12 +139,65 @@ def figure(env, path) -> None:
     fig.savefig(path, dpi=120)
 
 
+def variants(rows) -> dict[str, list]:
+    """{grid point: its rows}: a scenario's name is ``path/axis=value,...`` under a grid."""
+    out: dict[str, list] = {}
+    for r in rows:
+        path, _, point = r["name"].partition("/")
+        out.setdefault(point, []).append(dict(r, path=path))
+    return out
+
+
+def inside_envelope(row) -> bool:
+    """A circle within the paper's envelope: peak speed <= 1 m/s, turn rate <= 45 deg/s."""
+    m = CIRCLE.match(row["path"])
+    return bool(m) and float(m["v"]) <= 1.0 and math.degrees(float(m["v"]) / float(m["r"])) <= 45.0
+
+
+def rule_row(point: str, rows) -> str:
+    """One line of the comparison: walked per set, 200 N per side, returns, noisy tracking."""
+    def walked(pred):
+        sel = [r for r in rows if pred(r)]
+        return f"{sum(map(_ok, sel))}/{len(sel)}"
+    push = lambda f, side=None: (lambda r: (m := PUSH.match(r["path"])) is not None
+                                 and float(m["force"]) == f and side in (None, m["side"]))
+    noisy = [r for r in rows if NOISE.match(r["path"])]
+    rms = np.nanmedian([float(r["rms_track_err"] or "nan") for r in noisy if _ok(r)] or [np.nan])
+    back = sum(_recovered(r) for r in rows if PUSH.match(r["path"]))
+    return (f"| {point} | {walked(push(100.0))} | {walked(push(200.0, 'left'))} | "
+            f"{walked(push(200.0, 'right'))} | {walked(lambda r: r in noisy)} | "
+            f"{walked(inside_envelope)} | {walked(lambda r: True)} | {back} | {rms:.3f} |")
+
+
+def comparison(groups) -> list[str]:
+    return ["| grid point | 100 N | 200 N +y | 200 N −y | noise | circles in envelope | all | "
+            "pushes back ≤ 10 steps | noisy median RMS [m] |", "|---" * 9 + "|"] + [
+        rule_row(point, rows) for point, rows in groups.items()]
+
+
+def tables(rows) -> list[str]:
+    env = envelope(rows)
+    lines = ["### Pushes (line at 0.5 m/s)", ""] + push_table(rows)
+    lines += ["", "### Step noise", ""] + noise_table(rows)
+    return lines + ["", "### Speed × turn rate (circles, 20 s)", ""] + envelope_table(env)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("validation", type=pathlib.Path)
     ap.add_argument("speeds", type=pathlib.Path, nargs="?")
     ap.add_argument("--figure", type=pathlib.Path)
+    ap.add_argument("--variants", action="store_true",
+                    help="the run holds a grid over the validation set: compare its points")
     a = ap.parse_args(argv)
+    if a.variants:  # the summary table alone (a device's results come back without chunks)
+        with open(a.validation / "summary.csv", newline="") as f:
+            groups = variants(list(csv.DictReader(f)))
+        lines = ["### Comparison", ""] + comparison(groups)
+        for point, rs in groups.items():
+            lines += ["", f"## {point}", ""] + tables(rs)
+        print("\n".join(lines))
+        return 0
     rows = store.read_summary(a.validation)
     env = envelope(rows)
     lines = ["### Pushes (line at 0.5 m/s)", ""] + push_table(rows)
