@@ -159,6 +159,31 @@ def test_report_leads_with_the_run_level_table(hlip_run):
         assert f.is_file() and f.stat().st_size > 5000 and f"figures/coverage_seed_{i}.png" in text
 
 
+def test_the_report_drawn_by_worker_processes_is_the_one_drawn_here(hlip_run, tmp_path,
+                                                                     monkeypatch):
+    """The across-run coverage figures and the path sections, drawn as one task list in two
+    spawned workers (:func:`hlip_jax.runtime.workers.starmap`), give the in-process report:
+    the same Markdown and the same figure files."""
+    import shutil
+    copy = tmp_path / "r"
+    shutil.copytree(hlip_run, copy)
+    shutil.rmtree(copy / "figures", ignore_errors=True)
+    _, md = report.write_report(copy)
+    here, drawn = md.read_text(), sorted(p.name for p in (copy / "figures").iterdir())
+    shutil.rmtree(copy / "figures")
+    monkeypatch.setattr(report, "REPORT_RUNS_PER_WORKER", 1)
+    monkeypatch.setattr(report.workers.os, "cpu_count", lambda: 2)
+    used = []
+    starmap = report.workers.starmap
+    monkeypatch.setattr(report.workers, "starmap",
+                        lambda fn, calls, n: used.append((len(calls), n)) or starmap(fn, calls, n))
+    _, md = report.write_report(copy)
+    n_paths = len(store.read_manifest(copy)["paths"])
+    assert used == [(n_paths + 2, 2)], used       # two coverage figures (groups) + the paths
+    assert md.read_text() == here
+    assert sorted(p.name for p in (copy / "figures").iterdir()) == drawn
+
+
 def test_one_run_per_path_says_there_is_no_held_out_statistic(tmp_path):
     out = tmp_path / "one"
     runner.run_sweep(sweep.parse_sweep(_head(SWEEP) + '[[paths]]\nshape = "line"\n'), out,

@@ -338,20 +338,24 @@ def fig_coverage_sets(planes, fitted, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def _coverage_figures(doc, out: Path, split: str) -> None:
-    """The figure of :func:`fig_coverage_sets` for every group of ``split``."""
+def coverage_figure_calls(doc, out: Path, split: str) -> list[tuple]:
+    """Place :func:`fig_coverage_sets`'s figure of every group of ``split`` in ``doc`` and
+    return the calls that draw them (drawn with the path sections, :func:`write_report`)."""
     from hlip_jax.analysis import coverage as cov
     fig_dir = out / "figures"
     fig_dir.mkdir(exist_ok=True)
+    calls = []
     for i, (label, frame, fitted) in enumerate(store.coverage_sets(out, split)):
         fn = f"coverage_{split}_{i}.png"
-        fig_coverage_sets(cov.PLANES[frame], fitted, fig_dir / fn, f"{label} ({split} split)")
+        calls.append((cov.PLANES[frame], fitted, fig_dir / fn, f"{label} ({split} split)"))
         doc.img(f"figures/{fn}", f"held-out errors of {label} against E")
+    return calls
 
 
-def across_run_section(doc, out: Path) -> None:
+def across_run_section(doc, out: Path) -> list[tuple]:
     """The coverage section from ``coverage.csv`` (written first if absent, e.g. a results
-    directory from before the file existed), with a figure per group of its first split."""
+    directory from before the file existed), with a figure per group of its first split;
+    returns the :func:`fig_coverage_sets` calls that draw those figures."""
     if not (out / store.COVERAGE).is_file():
         store.write_coverage(out)
     doc.h(2, "Coverage over held-out runs")
@@ -366,11 +370,11 @@ def across_run_section(doc, out: Path) -> None:
     if not any(r["level"] == "run" for r in rows):
         doc.p("No group has runs that differ in a held-out field (seed, path or speed): no "
               "held-out statistic. Sweep seeds (the [analysis] table's splits) to get one.")
-        return
+        return []
     doc.table(ACROSS_HEAD, across_run_rows(rows))
     said = dict.fromkeys((r["split"], r["assumption"]) for r in rows if r["level"] == "run")
     doc.p("What each split assumes: " + "; ".join(f"{sp}: {a}" for sp, a in said) + ".")
-    _coverage_figures(doc, out, next(r["split"] for r in rows if r["level"] == "run"))
+    return coverage_figure_calls(doc, out, next(r["split"] for r in rows if r["level"] == "run"))
 
 
 # --------------------------------------------------------------------------------------------
@@ -864,12 +868,14 @@ def write_report(out_dir, heatmap_axes: Sequence[str] | None = None) -> tuple[Pa
     fig_dir.mkdir(exist_ok=True)
     doc = _Doc()
     title = _header_section(doc, man, rows, out)
-    across_run_section(doc, out)
+    figure_calls = across_run_section(doc, out)
+    path_calls = [(out, man, pname, rep, members_rows, fig_dir)
+                  for pname, (rep, members_rows) in _representatives(man, rows).items()]
+    tasks = [(fig_coverage_sets, c) for c in figure_calls] + [(path_part, c) for c in path_calls]
+    n_workers = min(len(tasks), workers.count(len(rows), REPORT_RUNS_PER_WORKER))
+    drawn = workers.starmap(workers.apply, tasks, n_workers)
     cov_summary = []
-    calls = [(out, man, pname, rep, members_rows, fig_dir)
-             for pname, (rep, members_rows) in _representatives(man, rows).items()]
-    n_workers = workers.count(len(rows), REPORT_RUNS_PER_WORKER) if len(calls) > 1 else 1
-    for parts, summary in workers.starmap(path_part, calls, n_workers):
+    for parts, summary in drawn[len(figure_calls):]:
         doc.parts += parts
         cov_summary += summary
     _closing_sections(doc, man, rows, fig_dir, heatmap_axes, cov_summary)

@@ -53,6 +53,11 @@ def _in_precision(x64: bool, fn: Callable, args: tuple):
     return fn(*args)
 
 
+def apply(fn: Callable, args: tuple):
+    """fn(*args): lets one :func:`starmap` run calls of different module-level functions."""
+    return fn(*args)
+
+
 def starmap(fn: Callable, calls: Sequence[tuple], workers: int) -> list:
     """[fn(*args) for args in calls], in order, over ``workers`` spawned processes (in this
     process when ``workers`` < 2 or no process can be started).  ``fn`` must be a module-level
