@@ -573,3 +573,24 @@ def test_a_run_times_its_stages(tmp_path):
     assert set(res.stages) == {"simulation", "analysis", "summary.csv and coverage.csv"}
     assert all(v >= 0.0 for v in res.stages.values())
     assert sum(res.stages.values()) <= res.seconds + 1e-6
+
+
+def test_the_first_segment_of_a_run_is_timed_from_its_chunk_start(tmp_path):
+    """A closed loop that reports its walking steps (the segmented Cassie loop): the stage
+    FIRST_SEGMENT is the time from the first chunk's start to its first news (the compile
+    when the cache is cold), within the simulation stage; later chunks do not move it."""
+    import time
+    from hlip_jax.runtime import progress
+
+    def slow_first(configs):
+        time.sleep(0.2)                       # a compile stand-in before the first news
+        progress.step_done(0, 2)
+        progress.step_done(1, 2)
+        return fake_simulate(configs)
+
+    res = runner.run_sweep(_tiny(), tmp_path / "r", batch=3, progress=False,
+                           simulate=slow_first)
+    assert res.chunks_run >= 2
+    first = res.stages[runner.FIRST_SEGMENT]
+    assert 0.2 <= first <= res.stages["simulation"]
+    assert first < 0.2 * res.chunks_run        # the first chunk's only

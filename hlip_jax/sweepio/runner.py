@@ -36,7 +36,8 @@ class RunResult:
     complete: bool
     seconds: float
     #: wall seconds per stage of this call: "simulation" (compiles included), "analysis" (the
-    #: chunks' per-scenario metrics), "summary.csv and coverage.csv"
+    #: chunks' per-scenario metrics), "summary.csv and coverage.csv", and where the closed loop
+    #: reports its steps :data:`FIRST_SEGMENT` (part of "simulation")
     stages: dict = dataclasses.field(default_factory=dict)
 
 
@@ -429,6 +430,19 @@ def _step_news(bar, done: int, chunk: int, n_chunks: int, duration: float = 0.0,
     return hear
 
 
+#: the stage that times a run's first simulated segment from the start of its chunk
+FIRST_SEGMENT = "first segment (compile included)"
+
+
+def _first_news(listener, stages: dict, t0: float):
+    """``listener``, and the first news of the run's first chunk timed into ``stages`` as
+    :data:`FIRST_SEGMENT` (seconds since ``t0``, the chunk's start: mostly the compile)."""
+    def hear(k: int, n_steps: int) -> None:
+        stages.setdefault(FIRST_SEGMENT, time.monotonic() - t0)
+        listener(k, n_steps)
+    return hear
+
+
 def _chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget):
     """The :func:`_step_news` listener of chunk ``i``: its longest duration and step period,
     and the chunks still to run after it (not stored yet, at most ``budget`` more when
@@ -464,7 +478,8 @@ def _run_chunks(out, configs, ranges, batch, sim, bar, done, max_chunks, with_co
             # listened to with or without --quiet, so that the loop runs the same segmented
             # program either way: the progress output must not change the numbers
             t_sim = time.monotonic()
-            with progress.listening(_chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget)):
+            news = _chunk_news(bar, done, i, ranges, chunk_cfgs, good, budget)
+            with progress.listening(_first_news(news, stages, t_sim) if ran == 0 else news):
                 log = sim(chunk_cfgs)
             stages["simulation"] += time.monotonic() - t_sim
         except (ImportError, NotImplementedError) as err:
