@@ -106,3 +106,26 @@ def test_no_seed_or_push_time_of_training_or_validation(test_set):
         other_seeds, other_times = _seeds_and_times(files)
         assert not seeds & other_seeds
         assert not times & other_times
+
+
+def test_the_test_set_report_reads_every_block_of_the_test_set(test_set):
+    """benchmarks/test_set_report.py sorts the test set's own scenario names into its blocks
+    (none left out, none counted twice), and counts a run that is not back on the path by its
+    end as the worst return."""
+    from support import load_benchmark
+    rep = load_benchmark("test_set_report")
+    rows = [{"name": c.name, "status": "ok", "push_recovery_steps": ""} for c in test_set]
+    counts = {
+        "200 N": sum(len(v) for v in rep.grouped(rows, rep.PUSH200, "side").values()),
+        "100 N": sum(len(v) for v in rep.grouped(rows, rep.PUSH100, "deg").values()),
+        "noise": sum(len(v) for v in rep.grouped(rows, rep.NOISE, "path").values()),
+        "lines": sum(len(v) for v in rep.grouped(rows, rep.LINE, "v").values()),
+        "turns": sum(len(v) for v in rep.grouped(rows, rep.TURN, "dir").values()),
+        "paper": sum(1 for r in rows if rep.PAPER.match(r["name"])),
+    }
+    assert counts == {"200 N": 64, "100 N": 32, "noise": 48, "lines": 28, "turns": 8,
+                      "paper": 44}, counts
+    assert sum(counts.values()) + 1 == len(rows)       # + the paper's push
+    assert {len(v) for v in rep.grouped(rows, rep.PUSH200, "side").values()} == {16}
+    steps = [{"push_recovery_steps": s} for s in ("4", "9", "12", "13", "")]
+    assert rep.steps_text(steps) == "12 / not back (2 of 5 within 10)"
