@@ -141,12 +141,49 @@ def run_sweep(sw: "sweep_mod.Sweep", out_dir, *, batch: int | None = None, resum
         raise store.StoreError("the sweep expands to no scenarios")
     resolved = resolve_impl(sw)
     configs = impl.apply(configs, resolved.settings)
+    _check_gains(sw, configs)
     bar = Progress(len(configs), sw.name, stream=stream, enabled=progress)
     if progress and any(c.plant == "cassie" for c in configs):
         bar.note(resolved.describe())
     with store.results_lock(out):
         return _run_locked(sw, out, configs, batch, resume, overwrite, simulate, max_chunks,
                            bar, with_coverage, resolved)
+
+
+def _check_gains(sw, configs) -> None:
+    """SweepError, before anything is written, for a scenario whose stepping gain is not
+    finite: LQR weights inside their ranges whose Riccati solution overflows (``r = 1e-9``
+    with ``q_* = 1e6``) would run the closed loop on NaN and fail in its analysis."""
+    from hlip_jax.simulation import arrays
+    seen = set()
+    for c in configs:
+        key = (c.hlip, c.gain, c.s2s)
+        if key in seen:
+            continue
+        seen.add(key)
+        if np.all(np.isfinite(arrays.stepping_gain(c))):
+            continue
+        g = c.gain
+        design = (f"gain.type = 'lqr' with q_c = {g.q_c:g}, q_p = {g.q_p:g}, q_v = {g.q_v:g}, "
+                  f"r = {g.r:g}" if g.type == "lqr" else f"gain.type = {g.type!r}")
+        raise sweep_mod.SweepError(
+            f"{sw.source}: scenario {c.name!r}: {design} gives no finite stepping gain (the "
+            "design's Riccati solution overflows); allowed: weights whose gain is finite "
+            "(a larger gain.r or smaller gain.q_*)")
+
+
+def _analysis_change(old: dict, sw) -> str | None:
+    """Which ``[analysis]`` setting of the sweep differs from the one the interrupted run
+    records (its manifest's ``analysis``), or None: the chunks to come would compute their
+    coverage columns with another warm-up, and the report would still read the run's."""
+    before, now = old.get("analysis"), analysis_settings.to_dict(sw.analysis)
+    if not isinstance(before, dict):
+        return None
+    key = next((k for k in now if before.get(k) != now[k]), None)
+    if key is None:
+        return None
+    return (f"the sweep's [analysis] differs from the run's ({key}: {before.get(key)!r} in "
+            f"{store.MANIFEST}, {now[key]!r} now)")
 
 
 def resolve_impl(sw) -> "impl.Resolved":
@@ -322,6 +359,11 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
     if resume and old is not None and old.get("config_hash") != chash:
         _refuse_changed_file(out, old, configs, files)
     old = _check_existing(out, old, resume, overwrite, chash, (batch, n), with_coverage)
+    why = _analysis_change(old, sw) if old is not None else None
+    if why:
+        raise store.StoreError(f"refusing to resume {out}: {why}; resume with the run's "
+                               f"[analysis] (`hlip-sweep coverage {out} --q Q --warmup K` then "
+                               "rewrites coverage.csv), or rerun with --overwrite")
     ranges = store.chunk_ranges(n, batch)
     man = dict(old) if old else _new_manifest(sw, configs, batch, len(ranges), chash,
                                               with_coverage)

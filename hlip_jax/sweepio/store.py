@@ -115,7 +115,11 @@ def write_atomic(path, data: bytes | str) -> None:
     (permissions as the umask gives any new file, not ``mkstemp``'s 0600)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as err:      # e.g. a read-only folder: named as the file, not the temporary
+        raise type(err)(err.errno, f"{err.strerror}; cannot write this file: its folder must "
+                        "be writable", str(path)) from None
     try:
         os.fchmod(fd, _file_mode())
         with os.fdopen(fd, "wb") as fh:
