@@ -1032,8 +1032,10 @@ def cmd_wbox(args) -> int:
     if args.method not in estimators.METHODS:
         raise UserError(f"--method: {args.method!r}; allowed: {', '.join(estimators.METHODS)}")
     # coverage.csv is checked against the manifest, the manifest against the chunks: a
-    # manifest and table copied in together from another run are not this run's W
-    store.check_chunks(d)
+    # manifest and table copied in together from another run are not this run's W (a table
+    # alone, without a manifest, is read as before)
+    if os.path.lexists(d / store.MANIFEST):
+        store.check_chunks(d)
     try:
         rows = store.read_coverage(d)
         frame, w, groups = robust.w_from_coverage(rows, args.method, args.group)
