@@ -175,11 +175,12 @@ def _check_gains(sw, configs) -> None:
 def _analysis_change(old: dict, sw) -> str | None:
     """Which ``[analysis]`` setting of the sweep differs from the one the interrupted run
     records (its manifest's ``analysis``), or None: the chunks to come would compute their
-    coverage columns with another warm-up, and the report would still read the run's."""
+    coverage columns with another warm-up, and the report would still read the run's (a
+    setting the manifest does not record, written by an earlier version, is not compared)."""
     before, now = old.get("analysis"), analysis_settings.to_dict(sw.analysis)
     if not isinstance(before, dict):
         return None
-    key = next((k for k in now if before.get(k) != now[k]), None)
+    key = next((k for k in now if k in before and before[k] != now[k]), None)
     if key is None:
         return None
     return (f"the sweep's [analysis] differs from the run's ({key}: {before.get(key)!r} in "
