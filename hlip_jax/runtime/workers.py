@@ -11,6 +11,11 @@ kernels on the CPU; spread over processes it scales with the host's cores.  A wo
 
 Where no process can be started (a sandbox without spawn, a killed worker) the same calls run
 in this process: results already simulated are never lost to the pool.
+
+The pool outlives one map: a run writes coverage.csv and then draws its report, and spawning
+the workers (each imports JAX, matplotlib and the package) costs seconds each time, so the
+second map reuses the first one's processes when it asks for as many workers in the same
+precision (:func:`close` ends them; the interpreter's exit does too).
 """
 
 from __future__ import annotations
@@ -66,10 +71,33 @@ def starmap(fn: Callable, calls: Sequence[tuple], workers: int) -> list:
         return [fn(*args) for args in calls]
     import jax
     x64 = bool(jax.config.jax_enable_x64)
-    ctx = multiprocessing.get_context("spawn")
+    n = min(workers, len(calls))
     try:
-        with cpu_children(), concurrent.futures.ProcessPoolExecutor(
-                min(workers, len(calls)), mp_context=ctx) as ex:
+        with cpu_children():                 # workers are spawned on demand, inside the map
+            ex = _pool(n, x64)
             return list(ex.map(_in_precision, [x64] * len(calls), [fn] * len(calls), calls))
     except (OSError, concurrent.futures.process.BrokenProcessPool):
+        close()
         return [fn(*args) for args in calls]
+
+
+#: the pool kept between maps: {"key": (workers, x64), "ex": ProcessPoolExecutor}
+_POOL: dict = {}
+
+
+def _pool(n: int, x64: bool) -> concurrent.futures.ProcessPoolExecutor:
+    """The kept pool of ``n`` spawned workers for precision ``x64`` (a new one, the old one
+    closed, when either differs)."""
+    if _POOL.get("key") != (n, x64):
+        close()
+        ctx = multiprocessing.get_context("spawn")
+        _POOL.update(key=(n, x64), ex=concurrent.futures.ProcessPoolExecutor(n, mp_context=ctx))
+    return _POOL["ex"]
+
+
+def close() -> None:
+    """End the kept pool's workers (a no-op without one)."""
+    ex = _POOL.pop("ex", None)
+    _POOL.pop("key", None)
+    if ex is not None:
+        ex.shutdown(wait=True, cancel_futures=True)
