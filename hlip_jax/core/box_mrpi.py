@@ -182,34 +182,43 @@ ROWS_PER_CALL = 512
 
 
 @functools.partial(jax.jit, static_argnames=("rows",))
-def _gauges(N, h, centre, x, rows: int):
-    """g (R, K) = max_f |N_f (x_rk − c_r)| / h_rf for facets N (F, n), half-widths h (R, F),
-    centres (R, n) and points x (R, K, n); ``rows`` rows at a time."""
-    R, K, n = x.shape
+def _gauges(N, h, y, rows: int):
+    """g (R, K) = max_f |N_f y_rk| / h_rf for facets N (F, n), half-widths h (R, F) and
+    points y = x − c* (R, K, n) relative to their row's centre; ``rows`` rows at a time.
+
+    y is formed by the caller in float64: in float32 (x − c*) keeps only ~eps₃₂ |c*| of the
+    difference, which for a set of half-width h ≪ |c*| is an error of eps₃₂ |c*| / h in g
+    (a 1 mm box 1 m off the origin: 6e-5, ten times the tolerance)."""
+    R, K, n = y.shape
 
     def block(args):
-        hb, cb, xb = args
+        hb, yb = args
         Ns = N[None] / jnp.maximum(hb, jnp.finfo(hb.dtype).tiny)[..., None]    # (r, F, n)
-        return jnp.max(jnp.abs(jnp.einsum("rkn,rfn->rkf", xb - cb[:, None], Ns)), axis=-1)
+        return jnp.max(jnp.abs(jnp.einsum("rkn,rfn->rkf", yb, Ns)), axis=-1)
 
     split = lambda a: a.reshape((R // rows, rows) + a.shape[1:])
-    return jax.lax.map(block, (split(h), split(centre), split(x))).reshape(R, K)
+    return jax.lax.map(block, (split(h), split(y))).reshape(R, K)
 
 
 def gauges(bs: BoxSets, rows: np.ndarray, points: list) -> list:
     """The gauge of each of ``points[i]`` (k_i, n) in the inner set of row ``rows[i]`` (all
-    rows ok and of one template), in one jitted call: a list of (k_i,) arrays."""
+    rows ok and of one template), in one jitted call: a list of (k_i,) arrays.  A point with a
+    NaN or infinite coordinate, or one whose gauge is not finite in the kernel's precision,
+    gets g = ∞ (outside every set, as ``sets.gauge(...) <= 1`` decides it): XLA's fused
+    maximum over the facets can drop NaN products (a NaN point came out as g = −∞, inside)."""
     N = sets.box_sum_template(*bs.template[rows[0]])[0]
     F, n = N.shape
     Fb, Kb = sets.bucket(F), sets.bucket(max(1, max(len(p) for p in points)))
     Rb = sets.bucket(len(rows))
     blk = int(max(1, min(Rb, GAUGE_BLOCK // (Kb * Fb))))
     blk = 1 << (blk.bit_length() - 1)                        # a power of two dividing Rb
-    x, h, c, Np = np.zeros((Rb, Kb, n)), np.ones((Rb, Fb)), np.zeros((Rb, n)), np.zeros((Fb, n))
+    y, h, Np = np.zeros((Rb, Kb, n)), np.ones((Rb, Fb)), np.zeros((Fb, n))
     for i, (r, p) in enumerate(zip(rows, points)):      # padding: inert facets, zero points
-        x[i, :len(p)], h[i, :F] = p, bs.offsets[r]
-    c[:len(rows)], Np[:F] = bs.centre[rows], N
-    g = np.asarray(_gauges(Np, h, c, x, rows=blk), np.float64)
+        y[i, :len(p)], h[i, :F] = sets.as_float64(p) - bs.centre[r], bs.offsets[r]
+    Np[:F] = N
+    finite = np.isfinite(y).all(axis=-1)
+    g = np.asarray(_gauges(Np, h, np.where(finite[..., None], y, 0.0), rows=blk), np.float64)
+    g = np.where(finite & np.isfinite(g), g, np.inf)
     return [g[i, :len(p)] for i, p in enumerate(points)]
 
 
@@ -228,7 +237,7 @@ def coverage(bs: BoxSets, points: list, tol: float = 1e-9) -> Covered:
     R = len(points)
     tol = compute_tolerance(tol)
     inner, outer = np.full(R, np.nan), np.full(R, np.nan)
-    count = np.array([len(p) for p in points])
+    count = np.array([len(p) for p in points], np.int64)
     groups: dict = {}
     for r in np.flatnonzero(bs.ok & (count > 0)):
         groups.setdefault(bs.template[r], []).append(r)

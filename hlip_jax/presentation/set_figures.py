@@ -42,7 +42,8 @@ def projected_outline(E, dims) -> np.ndarray:
         return vertices(E)[:, list(dims)]
     c, G, k = parts
     g = G[:, list(dims)]
-    g = g[np.linalg.norm(g, axis=1) > 1e-14 * max(np.linalg.norm(g, axis=1).max(), 1e-300)]
+    gn = np.linalg.norm(g, axis=1)
+    g = g[gn > 1e-14 * max(gn.max(initial=0.0), 1e-300)]     # (a zonotope may have none)
     if len(g) == 0:
         return c[list(dims)][None]
     th = np.sort(np.mod(np.arctan2(g[:, 1], g[:, 0])[:, None] + np.array([0.5, 1.5]) * np.pi,
@@ -79,6 +80,12 @@ def _hull(V):
         return ConvexHull(V)
     except QhullError:
         return ConvexHull(V, qhull_options="QJ")
+
+
+def _polygon(V) -> np.ndarray:
+    """The corners of the convex hull of the 2-D points V in order, or V itself where there
+    are fewer than three (a set whose projection is one point: Qhull needs a simplex)."""
+    return V[_hull(V).vertices] if len(V) >= 3 else V
 
 
 def plot_set_3d(E, samples=None, ax=None, face_color="tab:blue", inside_color="tab:green",
@@ -124,7 +131,7 @@ def plot_set_2d(E, samples=None, dims=(0, 1), ax=None, face_color="tab:blue",
     if ax is None:
         ax = plt.figure().add_subplot()
     V = projected_outline(E, dims)
-    poly = V[_hull(V).vertices]
+    poly = _polygon(V)
     ax.fill(*poly.T, color=face_color, alpha=alpha, lw=1)
     if samples is not None:
         P, inside = _split_inside(E, samples)
