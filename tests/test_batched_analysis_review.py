@@ -141,12 +141,13 @@ def test_deadbeat_matrices_and_points_on_facets_in_float32(float32, A):
 # ---------------------------------------------------------------------------------------------
 
 def _spy(monkeypatch) -> list:
-    """Record (y.shape, h.shape, N.shape, rows) of each call of the membership kernel."""
+    """Record (y.shape, h.shape, N.shape, rows, points) of each call of the membership
+    kernel."""
     calls, kernel = [], box_mrpi._gauges
 
-    def spy(N, h, y, rows):
-        calls.append((y.shape, h.shape, N.shape, rows))
-        return kernel(N, h, y, rows=rows)
+    def spy(N, h, y, rows, points):
+        calls.append((y.shape, h.shape, N.shape, rows, points))
+        return kernel(N, h, y, rows=rows, points=points)
 
     monkeypatch.setattr(box_mrpi, "_gauges", spy)
     return calls
@@ -181,9 +182,10 @@ def test_rows_are_padded_and_chunked_and_decide_as_float64(float32, monkeypatch,
     assert cov.n.dtype.kind == "i" and cov.n.shape == (R,)
     counted = sum(len(p) > 0 for p in pts)
     assert len(calls) == -(-counted // 512)
-    assert all(y[0] <= box_mrpi.ROWS_PER_CALL and h[0] == y[0] for y, h, _, _ in calls)
-    for (y, h, N, rows) in calls:                          # one block's entries are bounded
-        assert rows * y[1] * N[0] <= box_mrpi.GAUGE_BLOCK and y[0] % rows == 0
+    assert all(y[0] <= box_mrpi.ROWS_PER_CALL and h[0] == y[0] for y, h, _, _, _ in calls)
+    for (y, h, N, rows, points) in calls:                  # one block's entries are bounded
+        assert rows * points * N[0] <= box_mrpi.GAUGE_BLOCK
+        assert y[0] % rows == 0 and y[1] % points == 0
     for r in range(R):
         if not len(pts[r]):
             assert np.isnan(cov.inner[r])
@@ -193,6 +195,27 @@ def test_rows_are_padded_and_chunked_and_decide_as_float64(float32, monkeypatch,
                                                         for i in range(bs.s[r])]))
         np.testing.assert_allclose(z.offsets, bs.offsets[r], rtol=1e-12)
         assert cov.inner[r] == np.mean(sets.gauge(z, pts[r]) <= 1.0)
+
+
+def test_a_block_is_bounded_also_when_one_rows_points_exceed_it(float32, monkeypatch):
+    """With GAUGE_BLOCK below one row's points × facets (a long run against a set of
+    thousands of facets), the kernel splits the points too: every block has at most
+    GAUGE_BLOCK entries (it had a whole row's), and the gauges are those of one block per
+    row (equal to 1e-6 relative: float32 sums in another grouping)."""
+    rng = np.random.default_rng(6)
+    lo = rng.uniform(-0.05, -0.01, (3, 3))
+    bs = box_mrpi.box_sets(A3, lo, lo + 0.04, 1e-6)
+    rows = np.flatnonzero([t == bs.template[0] for t in bs.template])
+    pts = [rng.normal(0, 0.03, (300, 3)) for _ in rows]
+    whole = box_mrpi.gauges(bs, rows, pts)
+    F = sets.bucket(len(bs.offsets[0]))
+    monkeypatch.setattr(box_mrpi, "GAUGE_BLOCK", 32 * F)
+    calls = _spy(monkeypatch)
+    split = box_mrpi.gauges(bs, rows, pts)
+    (y, _, N, blk, points), = calls
+    assert y[1] == 512 and blk == 1 and points == 32 and blk * points * N[0] <= 32 * F
+    for a, b in zip(whole, split):
+        np.testing.assert_allclose(a, b, rtol=1e-6)
 
 
 def test_rows_of_different_orders_go_to_separate_calls(float32, monkeypatch):

@@ -174,17 +174,19 @@ def compute_tolerance(tol: float) -> float:
     return max(float(tol), 50.0 * float(np.finfo(dtype).eps))
 
 
-#: (rows × points × facets) entries per block of :func:`_gauges`
+#: (rows × points × facets) entries per block of :func:`_gauges` (a block is one row's facets
+#: where those alone are more)
 GAUGE_BLOCK = 1 << 22
 #: rows per call of :func:`gauges` at most (bounds the host's padded (rows × facets) offsets:
 #: 512 × 32,768 float64 = 128 MiB), so a chunk of thousands of scenarios costs several calls
 ROWS_PER_CALL = 512
 
 
-@functools.partial(jax.jit, static_argnames=("rows",))
-def _gauges(N, h, y, rows: int):
+@functools.partial(jax.jit, static_argnames=("rows", "points"))
+def _gauges(N, h, y, rows: int, points: int):
     """g (R, K) = max_f |N_f y_rk| / h_rf for facets N (F, n), half-widths h (R, F) and
-    points y = x − c* (R, K, n) relative to their row's centre; ``rows`` rows at a time.
+    points y = x − c* (R, K, n) relative to their row's centre; ``rows`` rows and ``points``
+    points at a time (a block of rows × points × F entries).
 
     y is formed by the caller in float64: in float32 (x − c*) keeps only ~eps₃₂ |c*| of the
     difference, which for a set of half-width h ≪ |c*| is an error of eps₃₂ |c*| / h in g
@@ -192,12 +194,19 @@ def _gauges(N, h, y, rows: int):
     R, K, n = y.shape
 
     def block(args):
-        hb, yb = args
+        hb, yb = args                                    # (r, F), (K / points, r, points, n)
         Ns = N[None] / jnp.maximum(hb, jnp.finfo(hb.dtype).tiny)[..., None]    # (r, F, n)
-        return jnp.max(jnp.abs(jnp.einsum("rkn,rfn->rkf", yb, Ns)), axis=-1)
+        part = lambda yc: jnp.max(jnp.abs(jnp.einsum("rkn,rfn->rkf", yc, Ns)), axis=-1)
+        return jax.lax.map(part, yb)                     # (K / points, r, points)
 
-    split = lambda a: a.reshape((R // rows, rows) + a.shape[1:])
-    return jax.lax.map(block, (split(h), split(y))).reshape(R, K)
+    yb = y.reshape(R // rows, rows, K // points, points, n).transpose(0, 2, 1, 3, 4)
+    g = jax.lax.map(block, (h.reshape((R // rows, rows) + h.shape[1:]), yb))
+    return g.transpose(0, 2, 1, 3).reshape(R, K)
+
+
+def _power_of_two(k: int) -> int:
+    """The largest power of two ≤ max(k, 1)."""
+    return 1 << (int(max(k, 1)).bit_length() - 1)
 
 
 def gauges(bs: BoxSets, rows: np.ndarray, points: list) -> list:
@@ -210,14 +219,17 @@ def gauges(bs: BoxSets, rows: np.ndarray, points: list) -> list:
     F, n = N.shape
     Fb, Kb = sets.bucket(F), sets.bucket(max(1, max(len(p) for p in points)))
     Rb = sets.bucket(len(rows))
-    blk = int(max(1, min(Rb, GAUGE_BLOCK // (Kb * Fb))))
-    blk = 1 << (blk.bit_length() - 1)                        # a power of two dividing Rb
+    # rows and points per block, powers of two (dividing Rb and Kb): blk·pts·Fb ≤ GAUGE_BLOCK,
+    # or pts·Fb ≤ GAUGE_BLOCK with blk = 1 where one row's points exceed it, or Fb alone
+    blk = _power_of_two(min(Rb, GAUGE_BLOCK // (Kb * Fb)))
+    pts = _power_of_two(min(Kb, GAUGE_BLOCK // (blk * Fb)))
     y, h, Np = np.zeros((Rb, Kb, n)), np.ones((Rb, Fb)), np.zeros((Fb, n))
     for i, (r, p) in enumerate(zip(rows, points)):      # padding: inert facets, zero points
         y[i, :len(p)], h[i, :F] = sets.as_float64(p) - bs.centre[r], bs.offsets[r]
     Np[:F] = N
     finite = np.isfinite(y).all(axis=-1)
-    g = np.asarray(_gauges(Np, h, np.where(finite[..., None], y, 0.0), rows=blk), np.float64)
+    g = np.asarray(_gauges(Np, h, np.where(finite[..., None], y, 0.0), rows=blk, points=pts),
+                   np.float64)
     g = np.where(finite & np.isfinite(g), g, np.inf)
     return [g[i, :len(p)] for i, p in enumerate(points)]
 
