@@ -492,20 +492,34 @@ def test_results_files_respect_the_umask(mask, mode, tmp_path, tiny_sweep, capsy
         assert (tmp_path / "o" / name).stat().st_mode & 0o777 == mode, name
 
 
+_SLOW_CALLS = []
+
+
 def slow_simulate(configs):
-    """The fake closed loop, one second per chunk (time to send a signal)."""
+    """The fake closed loop, one second per chunk (time to send a signal); with
+    ``HLIP_TEST_GATE`` set, every chunk after the first also waits (at most 120 s) for that file
+    to exist, so a test can act while the run is surely still going."""
     import time
 
     from test_store import fake_simulate
     time.sleep(1.0)
+    gate = os.environ.get("HLIP_TEST_GATE")
+    if gate and _SLOW_CALLS:
+        deadline = time.monotonic() + 120
+        while not os.path.exists(gate) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    _SLOW_CALLS.append(len(configs))
     return fake_simulate(configs)
 
 
-def _slow_run(sweep_file, out):
-    """Start a slow run (one second per chunk) and return once its first chunk is stored."""
+def _slow_run(sweep_file, out, gate=None):
+    """Start a slow run (one second per chunk; its later chunks held until the file ``gate``
+    exists, where given) and return once its first chunk is stored."""
     import time
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]),
                HLIP_SWEEP_SIMULATE="test_cli:slow_simulate", MPLBACKEND="Agg")
+    if gate is not None:
+        env["HLIP_TEST_GATE"] = str(gate)
     proc = subprocess.Popen([sys.executable, "-m", "hlip_jax.presentation.cli", "run", str(sweep_file), "--out",
                              str(out), "--batch", "1", "--quiet", "--no-report"], env=env,
                             text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -523,8 +537,12 @@ def test_two_concurrent_runs_the_second_exits_2(tmp_path, tiny_sweep, capsys, fa
     ref, out = tmp_path / "ref", tmp_path / "o"
     r0 = hs("run", tiny_sweep, "--out", ref, "--quiet", "--batch", "1", "--no-report")
     assert r0.returncode == 0, r0.stderr
-    first = _slow_run(tiny_sweep, out)
-    r = hs("run", tiny_sweep, "--out", out, "--overwrite", "--quiet", "--batch", "1")
+    gate = tmp_path / "go"
+    first = _slow_run(tiny_sweep, out, gate)       # held after its first chunk until `gate`
+    try:
+        r = hs("run", tiny_sweep, "--out", out, "--overwrite", "--quiet", "--batch", "1")
+    finally:
+        gate.write_text("")
     line = _one_line_error(r.returncode, r.stderr)
     assert f"pid {first.pid}" in line
     _, err = first.communicate(timeout=120)
