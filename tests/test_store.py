@@ -594,3 +594,4 @@ def test_the_first_segment_of_a_run_is_timed_from_its_chunk_start(tmp_path):
     first = res.stages[runner.FIRST_SEGMENT]
     assert 0.2 <= first <= res.stages["simulation"]
     assert first < 0.2 * res.chunks_run        # the first chunk's only
+    assert list(res.stages)[:2] == ["simulation", runner.FIRST_SEGMENT]

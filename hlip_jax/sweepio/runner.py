@@ -411,7 +411,14 @@ def _run_locked(sw, out: Path, configs, batch, resume, overwrite, simulate, max_
             store.write_summary(out)
             store.write_coverage(out)
         stages["summary.csv and coverage.csv"] = time.monotonic() - t1
-    return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0, stages)
+    return RunResult(out, n, len(ranges), ran, skipped, complete, time.monotonic() - t0,
+                     _in_order(stages))
+
+
+def _in_order(stages: dict) -> dict:
+    """``stages`` with :data:`FIRST_SEGMENT` right after "simulation", the stage it is part of."""
+    order = ["simulation", FIRST_SEGMENT]
+    return {k: stages[k] for k in order + [k for k in stages if k not in order] if k in stages}
 
 
 def _verify_stored(out: Path, ranges, bar, run_id: str) -> set[int]:
