@@ -55,3 +55,17 @@ def test_a_killed_worker_costs_the_pool_not_the_results():
         assert after and not after & pids and os.getpid() not in after
     finally:
         workers.close()
+
+
+def test_a_process_that_kept_a_pool_exits_without_a_word(tmp_path):
+    """The kept pool is ended at exit, before the interpreter tears its modules down (a pool
+    collected during teardown prints 'Exception ignored ...' on stderr)."""
+    import subprocess
+    import sys
+    script = tmp_path / "keep.py"
+    script.write_text("import os\nfrom hlip_jax.runtime import workers\n"
+                      "if __name__ == '__main__':\n"
+                      "    print(len(set(workers.starmap(os.getpid, [()] * 4, 2))))\n")
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() in ("1", "2"), r.stderr
+    assert r.stderr == "", r.stderr

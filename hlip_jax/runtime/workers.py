@@ -15,11 +15,12 @@ in this process: results already simulated are never lost to the pool.
 The pool outlives one map: a run writes coverage.csv and then draws its report, and spawning
 the workers (each imports JAX, matplotlib and the package) costs seconds each time, so the
 second map reuses the first one's processes when it asks for as many workers in the same
-precision (:func:`close` ends them; the interpreter's exit does too).
+precision (:func:`close` ends them, and runs at the interpreter's exit).
 """
 
 from __future__ import annotations
 
+import atexit
 import concurrent.futures
 import contextlib
 import multiprocessing
@@ -101,3 +102,7 @@ def close() -> None:
     _POOL.pop("key", None)
     if ex is not None:
         ex.shutdown(wait=True, cancel_futures=True)
+
+
+# ended before the interpreter tears its modules down (a pool collected then reports an error)
+atexit.register(close)
