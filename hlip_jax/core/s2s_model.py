@@ -41,6 +41,9 @@ from hlip_jax.core import s2s_fit
 #: the largest model file read [bytes] (a model is a few hundred bytes)
 MAX_BYTES = 1_000_000
 
+#: the largest magnitude of a model file's numbers (its pair count ``n`` included)
+MAX_VALUE = 1e9
+
 
 class Model(NamedTuple):
     """An identified S2S model (module doc)."""
@@ -127,8 +130,15 @@ def read(path) -> Model:
         if k not in arrays or arrays[k].shape != shape:
             got = "missing" if k not in arrays else f"shape {arrays[k].shape}"
             raise ValueError(f"{path!s}: {k}: {got}; allowed: an array of shape {shape}")
+        if arrays[k].dtype.kind not in "iuf":     # booleans, complex numbers, text: no model's
+            raise ValueError(f"{path!s}: {k}: an array of {arrays[k].dtype}; allowed: real "
+                             "numbers (integers or floats)")
         if not np.all(np.isfinite(arrays[k].astype(np.float64))):
             raise ValueError(f"{path!s}: {k}: non-finite values; allowed: finite numbers")
+        if np.any(np.abs(arrays[k].astype(np.float64)) > MAX_VALUE):
+            raise ValueError(f"{path!s}: {k}: values beyond ±{MAX_VALUE:g}; allowed: finite "
+                             f"numbers within ±{MAX_VALUE:g} (a walking robot's S2S map is of "
+                             "order 1; the closed loop computes in float32)")
     return Model(A=arrays["A"].astype(np.float64), B=arrays["B"].astype(np.float64),
                  offset=arrays["offset"].astype(np.float64), rms=arrays["rms"].astype(np.float64),
                  n=int(arrays["n"]), rank=int(arrays["rank"]),

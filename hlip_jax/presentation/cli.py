@@ -857,14 +857,20 @@ def _stored_rows(d: Path, groups: list[list[int]]):
     log = store.load_log(d, wanted)
     row = {int(i): r for r, i in enumerate(log["index"])}
     missing = [i for i in dict.fromkeys(wanted) if i not in row]
-    if missing:
-        print(f"{PROG}: note: {len(missing)} of the {len(set(wanted))} chosen scenarios are not "
-              f"stored yet (an unfinished run; finish it with `{PROG} run SWEEP --out {d} "
-              "--resume`); using the stored ones", file=sys.stderr)
+    _note_unstored(d, len(missing), len(set(wanted)))
     rows = [[row[i] for i in g if i in row] for g in groups]
     if groups[0] and not rows[0]:
         raise UserError(f"{d}: none of the chosen scenarios is stored yet")
     return log, rows
+
+
+def _note_unstored(d: Path, missing: int, wanted: int) -> None:
+    """A note on stderr when ``missing`` of the ``wanted`` chosen scenarios of ``d`` have no
+    chunk yet (an unfinished run, or one still running)."""
+    if missing:
+        print(f"{PROG}: note: {missing} of the {wanted} chosen scenarios are not "
+              f"stored yet (an unfinished run; finish it with `{PROG} run SWEEP --out {d} "
+              "--resume`); using the stored ones", file=sys.stderr)
 
 
 def _matching(names: list[str], regex: str, option: str) -> list[int]:
@@ -893,7 +899,7 @@ def cmd_s2s(args) -> int:
     if args.skip < 0:
         raise UserError(f"--skip: expected an integer >= 0, got {args.skip}")
     log, (chosen,) = _stored_rows(d, [_chosen_scenarios(d, args.scenarios)])
-    _check_skip(log, chosen, args.skip, 5)
+    _check_skip(log, chosen, args.skip, 5)   # s2s_fit.fit's least
     try:
         f = s2s_fit.fit(log, chosen, args.skip)
     except ValueError as err:
@@ -910,15 +916,29 @@ def cmd_s2s(args) -> int:
 
 
 def _check_skip(log, chosen: list[int], skip: int, need: int) -> None:
-    """UserError naming --skip when it leaves fewer than ``need`` step pairs in every chosen
-    run (pairs k, k+1 with k >= skip): the cause is the option, not the scenarios."""
+    """UserError naming --skip when it leaves fewer than ``need`` step pairs in all the chosen
+    runs together (pairs k, k+1 of one run with k >= skip; the fit pools them): the cause is
+    the option, not the scenarios.  Where even --skip 0 leaves fewer (the runs fell or are
+    short) the scenarios are named instead, and the allowed values are those that leave
+    ``need`` pairs."""
     from hlip_jax.core import steplog
-    longest = max((int(steplog.alive(log["valid"][s]).sum()) for s in chosen), default=0)
-    if skip and longest - 1 - skip < need:
-        limit = longest - need
-        allowed = f"fewer than {limit}" if limit > 0 else "none (the runs are too short)"
-        raise UserError(f"--skip: {skip} leaves no usable step pairs (the longest chosen run "
-                        f"has {longest} steps); allowed: {allowed}")
+    steps = [int(steplog.alive(log["valid"][s]).sum()) for s in chosen]
+
+    def pairs(k: int) -> int:
+        return sum(max(0, n - 1 - k) for n in steps)
+    if pairs(skip) >= need:
+        return
+    longest = max(steps, default=0)
+    if pairs(0) < need:
+        raise UserError(f"scenarios: {len(chosen)} chosen runs with {pairs(0)} step pairs in "
+                        f"all, even with --skip 0 (the longest kept {longest} steps before it "
+                        f"ended or fell); the fit needs at least {need}: choose runs that walk "
+                        "longer")
+    limit = max(k for k in range(min(skip, longest)) if pairs(k) >= need)
+    left = "no" if not pairs(skip) else f"only {pairs(skip)}"
+    raise UserError(f"--skip: {skip} leaves {left} usable step pairs in the "
+                    f"{len(chosen)} chosen runs (the longest has {longest} steps); the fit "
+                    f"needs at least {need}; allowed: at most {limit}")
 
 
 def cmd_identify(args) -> int:
@@ -930,6 +950,7 @@ def cmd_identify(args) -> int:
     if out.suffix != ".npz" or out.exists():
         raise UserError(f"-o: {out}: allowed: a new file ending in .npz (nothing is overwritten)")
     _check_new_file(out, "-o")          # before the fit: its folder exists and takes files
+    _check_not_a_run_file(out, "-o")
     chosen = _chosen_scenarios(d, args.scenarios)
     test = [] if args.test is None else _chosen_scenarios(d, args.test)
     if set(test) & set(chosen):
@@ -938,12 +959,17 @@ def cmd_identify(args) -> int:
             raise UserError("--test: every matching scenario is also fitted on; allowed: "
                             "scenarios outside --scenarios")
     log, (chosen, test) = _stored_rows(d, [chosen, test])
-    _check_skip(log, chosen, args.skip, 1)
+    _check_skip(log, chosen, args.skip, 7)   # s2s_model.fit's least
     h = store.read_manifest(d)["configs"][int(log["index"][chosen[0]])]["hlip"]
     try:
         model = s2s_model.fit(log, chosen, (h["z0"], h["t_ssp"], h["t_dsp"]), args.skip)
     except ValueError as err:
         raise UserError(str(err)) from None
+    if model.rank < 7:      # least squares' minimum-norm answer, not one the steps determine
+        raise UserError(f"scenarios: the {len(chosen)} chosen runs' {model.n} step pairs give "
+                        f"a regressor of rank {model.rank} of 7, which does not determine the "
+                        "model (the steps do not vary, or their logs are damaged); nothing "
+                        "written; allowed: runs whose steps vary (several paths or speeds)")
     print(f"{len(chosen)} scenarios, {model.n} step pairs, regressor rank {model.rank} of 7")
     _print_model(model, log["A"][chosen[0]], log["B"][chosen[0]])
     if test:
@@ -992,16 +1018,28 @@ def cmd_whull(args) -> int:
     import csv
     import io
 
+    import numpy as np
+
     from hlip_jax.core import robust
     from hlip_jax.sweepio import store
     d, out = _results_dir(args.dir), Path(args.out)
     if out.exists():
         raise UserError(f"--out: {out} exists; allowed: a new file (nothing is overwritten)")
+    _check_not_a_run_file(out, "--out")
     chosen = _chosen_scenarios(d, args.scenarios)
+    where = store.stored_chunk_of(d)
+    _note_unstored(d, sum(i not in where for i in chosen), len(chosen))
     try:
         frame, samples, runs = store.disturbance_samples(d, chosen)
     except store.StoreError as err:
         raise UserError(str(err)) from None
+    if not all(np.all(np.isfinite(S)) for S in samples):
+        bad = next(i for i, *_, run in store.analysed_runs(d, store.analysis_settings(d).warmup,
+                                                           chosen)
+                   if not all(np.all(np.isfinite(run.kept_d(p))) for p in (0, 1)))
+        raise UserError(f"{where[bad]}: scenario {bad}'s disturbances hold NaN or infinite "
+                        "values (a damaged chunk); nothing written; remove the chunk and "
+                        f"`hlip-sweep run SWEEP --out {d} --resume` simulates it again")
     if samples[0].shape[1] != 3:
         raise UserError("the runs' W is on [p, v]; the tube needs [c, p, v] "
                         "(gain.with_position = true)")
@@ -1357,6 +1395,18 @@ def _check_new_file(p: Path, option: str) -> None:
     if not os.access(folder, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
         raise UserError(f"{option} {p}: not writable; allowed: a file in an existing, writable "
                         "folder")
+
+
+def _check_not_a_run_file(p: Path, option: str) -> None:
+    """UserError when the file ``p`` (``option``) would be written into the ``chunks`` folder
+    of a results directory: a model named like a chunk is read as one of that run's chunks
+    (and its every reader then refuses the run), so nothing is written there."""
+    from hlip_jax.sweepio import store
+    folder = p.parent.resolve()
+    if folder.name == store.CHUNK_DIR and (folder.parent / store.MANIFEST).exists():
+        raise UserError(f"{option} {p}: inside the {store.CHUNK_DIR} folder of the results "
+                        f"directory {folder.parent}, which holds that run's chunks only; "
+                        "allowed: a file in another folder")
 
 
 def cmd_bench(args) -> int:

@@ -166,6 +166,11 @@ def _check_gains(sw, configs) -> None:
         g = c.gain
         design = (f"gain.type = 'lqr' with q_c = {g.q_c:g}, q_p = {g.q_p:g}, q_v = {g.q_v:g}, "
                   f"r = {g.r:g}" if g.type == "lqr" else f"gain.type = {g.type!r}")
+        if c.s2s.model != "hlip":        # the gain is designed on the file's S2S map
+            raise sweep_mod.SweepError(
+                f"{sw.source}: scenario {c.name!r}: {design} on the S2S model of s2s.file "
+                f"{c.s2s.file!r} gives no finite stepping gain; allowed: a model file of "
+                "`hlip-sweep identify` whose map has a finite gain, or s2s.model = 'hlip'")
         raise sweep_mod.SweepError(
             f"{sw.source}: scenario {c.name!r}: {design} gives no finite stepping gain (the "
             "design's Riccati solution overflows); allowed: weights whose gain is finite "

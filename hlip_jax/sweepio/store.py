@@ -440,6 +440,9 @@ def load_chunk(path) -> dict[str, np.ndarray]:
                          f"`hlip-sweep run SWEEP --out DIR --resume` simulates it again") from None
 
 
+#: a chunk's arrays of the closed loop's design (S2S model, stepping gain), finite in every run
+DESIGNED_FIELDS = ("A", "B", "K_gain")
+
 #: a chunk's array naming the run that wrote it (its manifest's ``config_hash``, per scenario)
 RUN_ID = "run_id"
 
@@ -471,6 +474,12 @@ def chunk_problem(path, start: int, stop: int, run_id: str | None = None) -> str
     for k in STEP_FIELDS:
         if k in z and (z[k].ndim < 2 or z[k].shape[1] != K):
             return f"array {k!r} has shape {z[k].shape}; expected {K} steps second"
+    bad = next((k for k in DESIGNED_FIELDS if k in z and not np.all(np.isfinite(z[k]))), None)
+    if bad is not None:
+        return (f"array {bad!r} holds NaN or infinite values (a run's model and gain arrays "
+                "are finite: checked before it is simulated)")
+    if "stance" in z and not np.isin(z["stance"], (0, 1)).all():
+        return "array 'stance' holds values other than 0 (left) and 1 (right)"
     if not np.array_equal(z["index"], np.arange(start, stop)):
         return f"holds other scenarios (index {z['index'][:3].tolist()}...; expected {start}..{stop - 1})"
     if run_id is not None and RUN_ID in z and set(map(str, z[RUN_ID])) != {run_id}:
@@ -514,6 +523,14 @@ def _run_chunks_only(out_dir, man: dict) -> list[tuple[int, int]]:
                          f"chunk_00000.npz to chunk_{max(len(ranges) - 1, 0):05d}.npz); "
                          "remove it")
     return ranges
+
+
+def stored_chunk_of(out_dir) -> dict[int, Path]:
+    """The chunk file that holds each stored scenario of a results directory, by scenario
+    index (an unfinished run's scenarios not simulated yet are absent)."""
+    ranges = _run_chunks_only(out_dir, read_manifest(out_dir))
+    return {i: chunk_path(out_dir, k) for k, (a, b) in enumerate(ranges)
+            if os.path.lexists(chunk_path(out_dir, k)) for i in range(a, b)}
 
 
 def chunks_run_id(out_dir, man: dict) -> str | None:

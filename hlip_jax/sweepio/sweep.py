@@ -1175,9 +1175,30 @@ def _read_sweep_file(p: Path, source: str) -> str:
                              "a sweep file is a regular TOML file")
         raise SweepError(f"{source}: sweep file not found")
     try:
-        return p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
+        data = p.read_bytes()
+    except OSError as err:
         raise SweepError(f"{source}: cannot read the sweep file: {err}") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise SweepError(f"{source}: {_not_utf8(data, err)}; allowed: UTF-8 text (TOML "
+                         "files are UTF-8: save it as UTF-8, e.g. `iconv -t utf-8`)") from None
+
+
+#: byte-order marks of the encodings a sweep file saved by an editor is most often in
+_BOMS = ((b"\xff\xfe\x00\x00", "UTF-32"), (b"\x00\x00\xfe\xff", "UTF-32"),
+         (b"\xff\xfe", "UTF-16"), (b"\xfe\xff", "UTF-16"))
+
+
+def _not_utf8(data: bytes, err: UnicodeDecodeError) -> str:
+    """What is not UTF-8 in a file's bytes ``data``: the encoding its byte-order mark names,
+    or the line and the first byte that cannot be decoded."""
+    bom = next((name for mark, name in _BOMS if data.startswith(mark)), None)
+    if bom is not None:
+        return f"a {bom} file (it begins with a {bom} byte-order mark)"
+    line = data.count(b"\n", 0, err.start) + 1
+    return (f"line {line}: byte 0x{data[err.start]:02x} is not UTF-8 (a Latin-1 or Windows "
+            "character?)")
 
 
 #: fields that name a file; a relative path in a sweep file is read from that file's directory
