@@ -165,3 +165,32 @@ def test_a_sweep_file_not_in_utf8_names_its_encoding_or_line(tmp_path, capsys):
         line = _one_line_error(*cli(capsys, "show", p)[::2])
         assert f"{p}: {want}" in line and "allowed: UTF-8 text" in line, line
         assert "codec" not in line
+
+
+def test_coverage_is_refused_while_a_run_writes_the_directory(done, capsys):
+    """V34b: `coverage DIR` started after the first of 200 chunks of `run --batch 1` wrote the
+    table of the 12 chunks stored then; written after the run's own table, it stood as the
+    finished run's (`wbox` printed the W of 20 runs of 200, `report` showed 10 / 10 runs).  It
+    is refused while the run holds the directory's lock; a lock left by a dead run is none."""
+    table = (done / store.COVERAGE).read_bytes()
+    with store.results_lock(done):
+        line = _one_line_error(*cli(capsys, "coverage", done)[::2])
+    assert f"{done}: a run is writing this directory (pid " in line and "after it" in line
+    assert (done / store.COVERAGE).read_bytes() == table
+    code, _, err = cli(capsys, "coverage", done)       # the lock released: as before
+    assert code == 0, err
+
+
+def test_wbox_of_a_table_without_rows_names_the_splits_not_the_options(tmp_path, capsys,
+                                                                        fake_loop):
+    """V37: `[analysis] splits = ["speed"]` in a sweep that sweeps no speed: coverage.csv has
+    no rows, and `wbox DIR` (no option given) said `--group/--method: method 'box': no
+    coverage.csv rows of it`."""
+    sw = tmp_path / "s.toml"
+    sw.write_text(TINY + '[analysis]\nsplits = ["speed"]\n')
+    out = tmp_path / "o"
+    code, _, err = cli(capsys, "run", sw, "--out", out, "--quiet", "--no-report")
+    assert code == 0, err
+    line = _one_line_error(*cli(capsys, "wbox", out)[::2])
+    assert f"{out / store.COVERAGE}: holds no rows" in line and "(speed)" in line
+    assert "--group/--method" not in line and "--split path" in line

@@ -820,9 +820,11 @@ def cmd_coverage(args) -> int:
     train_on = _train_on(args.train_on)
     man = store.read_manifest(d)
     _check_train_values(train_on, man["configs"])
+    _check_no_writer(d)
     _note_unfinished(d, man, "coverage.csv holds the stored ones")
     with runner.on_host():
         rows = store.coverage_rows(d, settings, train_on)
+    _check_no_writer(d)             # a run started meanwhile writes its own table at its end
     if train_on is not None and all(r["note"] in ("no test run", "no training run") for r in rows):
         side = "test" if any(r["note"] == "no test run" for r in rows) else "training"
         raise UserError(f"--train-on: {args.train_on!r} leaves no {side} run in any group; "
@@ -835,6 +837,17 @@ def cmd_coverage(args) -> int:
                   f"[{r['ci_low']}, {r['ci_high']}] {r['note']}")
     print(f"coverage: {path}")
     return EXIT_OK
+
+
+def _check_no_writer(d: Path) -> None:
+    """UserError while a run writes ``d``: the table of the chunks stored so far would stand,
+    as the finished run's, over the one the run writes when it ends, if written after it."""
+    from hlip_jax.sweepio import store
+    holder = store.writer_of(d)
+    if holder is not None:
+        raise UserError(f"{d}: a run is writing this directory ({holder}); it writes "
+                        f"{store.COVERAGE} itself when it finishes; run `{PROG} coverage {d}` "
+                        "after it, if at all")
 
 
 def _chosen_scenarios(d: Path, regex: str) -> list[int]:
@@ -1076,6 +1089,12 @@ def cmd_wbox(args) -> int:
         store.check_chunks(d)
     try:
         rows = store.read_coverage(d)
+        if not rows:        # not the options' doing: no group had a held-out split
+            raise UserError(f"{d / store.COVERAGE}: holds no rows: no group of the run has "
+                            "runs that differ in a field of its [analysis] splits "
+                            f"({', '.join(store.analysis_settings(d).splits)}); allowed: a "
+                            f"table of W, e.g. from `{PROG} coverage {d} --split path` or "
+                            "--train-on FIELD=V1,V2")
         frame, w, groups = robust.w_from_coverage(rows, args.method, args.group)
     except store.OtherRunError as err:      # says how to rewrite it
         raise UserError(str(err)) from None

@@ -74,7 +74,8 @@ __all__ = [
     "write_atomic", "save_npz_atomic", "save_figure_atomic", "read_manifest", "load_chunk", "load_log",
     "write_summary", "read_summary", "chunk_files", "write_coverage",
     "read_coverage", "coverage_rows", "write_coverage_rows", "coverage_sets", "analysis_settings",
-    "disturbance_samples", "results_lock", "inside", "chunk_problem", "check_chunks",
+    "disturbance_samples", "results_lock", "writer_of", "inside", "chunk_problem", "check_chunks",
+    "stored_chunk_of",
 ]
 
 MANIFEST = "manifest.json"
@@ -1146,6 +1147,25 @@ def results_lock(out: Path):
             if made_lock and not (out / MANIFEST).exists():
                 _remove_unused(out, made_dir)
             raise
+    finally:
+        os.close(fd)
+
+
+def writer_of(out) -> str | None:
+    """The holder of the results directory ``out``'s lock (:func:`results_lock`: a run
+    writing it now), or None: nothing is created, and a lock left by a dead process (the
+    kernel dropped it) is no holder."""
+    try:
+        fd = os.open(Path(out) / LOCK, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError:                  # no lock file: no run has written here (or a link)
+        return None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return os.pread(fd, 300, 0).decode(errors="replace").strip() or "another process"
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        return None
     finally:
         os.close(fd)
 
