@@ -2,9 +2,10 @@
 step pairs of all the chosen runs before blaming --skip, `identify` refuses a fit its steps do
 not determine, neither `identify -o` nor `whull --out` writes into a run's `chunks/`, `whull`
 notes an unfinished run and refuses NaN disturbances, a chunk whose model or gain arrays are
-not finite or whose stance is neither foot is named, model files of booleans, complex or huge numbers are refused, a gain that
-an identified model makes infinite names the model file, and a sweep file that is not UTF-8
-names its encoding or line.
+not finite or whose stance is neither foot is named, model files of booleans, complex or huge
+numbers are refused, a gain that an identified model makes infinite names the model file, a
+sweep file that is not UTF-8 names its encoding or line, `coverage` is refused while a run
+writes the directory, and `wbox` of a table without rows names the splits.
 
 Runs use the fake closed loop of test_store.py (``HLIP_SWEEP_SIMULATE``) and the H-LIP plant.
 """
@@ -47,8 +48,27 @@ def test_s2s_counts_the_pairs_of_all_chosen_runs_before_blaming_skip(done, capsy
     assert f"allowed: at most {longest - 3}" in line        # 8 pairs in all
 
 
+def test_runs_that_fell_are_named_not_skip(tmp_path, capsys, fake_loop):
+    """V02: `identify` of runs that all fell after 3 steps advised `--skip: 4 ...; allowed:
+    fewer than 2`, with which the fit still had too few pairs; now the runs are named: even
+    --skip 0 leaves fewer pairs than the fit needs."""
+    sw = tmp_path / "fell.toml"
+    sw.write_text('name = "fell"\n[base]\nplant = "hlip"\nduration = 4.0\n'
+                  '[[paths]]\nshape = "line"\n[[paths]]\nshape = "circle"\n'
+                  '[grid.product]\n"gain.type" = ["lqr"]\n"mpc.alpha" = [0.1]\n')
+    out = tmp_path / "o"
+    code, _, err = cli(capsys, "run", sw, "--out", out, "--quiet", "--no-report")
+    assert code == 0, err
+    assert max(_steps(out)) <= 3                    # every run fell
+    f = tmp_path / "m.npz"
+    line = _one_line_error(*cli(capsys, "identify", out, "-o", f)[::2])
+    assert line.startswith("hlip-sweep: error: scenarios: 2 chosen runs with ") and \
+        "even with --skip 0" in line and "needs at least 7" in line, line
+    assert not f.exists()
+
+
 def test_identify_refuses_a_fit_its_steps_do_not_determine(done, tmp_path, capsys):
-    """V13: every chunk's states and steps damaged to one constant: `identify` wrote a model
+    """V10: every chunk's states and steps damaged to one constant: `identify` wrote a model
     of regressor rank 1 of 7 (least squares' minimum-norm answer, RMS 2e22), exit 0."""
     for i in range(4):
         _edit_chunk(done, i, x_robot=lambda a: np.full_like(a, 1e30),
@@ -60,8 +80,8 @@ def test_identify_refuses_a_fit_its_steps_do_not_determine(done, tmp_path, capsy
 
 
 def test_no_file_is_written_into_a_runs_chunks_folder(done, capsys):
-    """V19: `identify DIR -o OTHER/chunks/chunk_00004.npz` wrote the model there; the other
-    run's every reader then refused it (`not a chunk of this run`).  `whull --out` into a
+    """V14, V15: `identify DIR -o OTHER/chunks/chunk_00004.npz` wrote the model there; the
+    other run's every reader then refused it (`not a chunk of this run`).  `whull --out` into a
     `chunks/` folder is refused the same way."""
     for cmd in (["identify", done, "-o", done / "chunks" / "chunk_00004.npz"],
                 ["whull", done, "--out", done / "chunks" / "w.csv"]):
@@ -74,7 +94,7 @@ def test_no_file_is_written_into_a_runs_chunks_folder(done, capsys):
 
 
 def test_whull_refuses_nan_disturbances_and_names_the_chunk(done, tmp_path, capsys):
-    """V11: a chunk whose state fields are NaN: `whull` wrote a hull file of `nan` rows, exit
+    """V07: a chunk whose state fields are NaN: `whull` wrote a hull file of `nan` rows, exit
     0 (a sweep reading it then refuses the file, far from the cause)."""
     nan = {k: (lambda a: np.full_like(a, np.nan)) for k in ("x_robot", "u_robot", "w", "e",
                                                              "x_hlip")}
@@ -86,7 +106,7 @@ def test_whull_refuses_nan_disturbances_and_names_the_chunk(done, tmp_path, caps
 
 
 def test_whull_notes_the_scenarios_an_unfinished_run_has_not_stored(done, tmp_path, capsys):
-    """V37: `whull` of an unfinished run (or of one still running) printed the hull of the
+    """V29: `whull` of an unfinished run (or of one still running) printed the hull of the
     stored runs only, with no note, where `s2s` and `identify` note what is missing."""
     store.chunk_path(done, 3).unlink()
     code, out, err = cli(capsys, "whull", done, "--out", tmp_path / "w.csv")
@@ -96,7 +116,7 @@ def test_whull_notes_the_scenarios_an_unfinished_run_has_not_stored(done, tmp_pa
 
 
 def test_a_chunk_whose_model_arrays_are_not_finite_is_named(done, tmp_path, capsys):
-    """V12: a chunk's `A` and `B` NaN: `identify` printed `H-LIP +nan p +nan v` beside the fit
+    """V09: a chunk's `A` and `B` NaN: `identify` printed `H-LIP +nan p +nan v` beside the fit
     and wrote the model, exit 0.  Every reader now names the chunk."""
     _edit_chunk(done, 2, A=lambda a: np.full_like(a, np.nan))
     for cmd in (["identify", done, "-o", tmp_path / "m.npz"], ["s2s", done], ["report", done]):
@@ -106,7 +126,7 @@ def test_a_chunk_whose_model_arrays_are_not_finite_is_named(done, tmp_path, caps
 
 
 def test_a_chunk_whose_stance_is_neither_foot_is_named(done, capsys):
-    """V14: a chunk's `stance` set to 7 (neither 0, left, nor 1, right): `s2s` fitted without
+    """V11: a chunk's `stance` set to 7 (neither 0, left, nor 1, right): `s2s` fitted without
     its stance constants (regressor rank 3 of 5), exit 0."""
     _edit_chunk(done, 1, stance=lambda a: np.full_like(a, 7))
     line = _one_line_error(*cli(capsys, "s2s", done, "--skip", 0)[::2])
@@ -127,7 +147,7 @@ def _model_sweep(tmp_path, name: str, **arrays) -> object:
 
 
 def test_model_files_of_booleans_complex_or_huge_numbers_are_refused(tmp_path, capsys):
-    """V23, V26, V27: an `s2s.file` whose A is 1e300 printed numpy's overflow warning and
+    """V17, V19, V20: an `s2s.file` whose A is 1e300 printed numpy's overflow warning and
     blamed the gain's weights (`a larger gain.r`); a boolean A was read as 0/1 (the same
     message); a complex cadence printed two ComplexWarnings and compared its real part."""
     for name, arrays, want in [
@@ -141,7 +161,7 @@ def test_model_files_of_booleans_complex_or_huge_numbers_are_refused(tmp_path, c
 
 def test_an_identified_model_without_a_finite_gain_names_the_model_file(tmp_path, capsys,
                                                                         fake_loop):
-    """V26: a model file whose map the deadbeat design cannot invert (B = 0) was refused with
+    """V21: a model file whose map the deadbeat design cannot invert (B = 0) was refused with
     `gain.type = 'deadbeat' gives no finite stepping gain ...; allowed: ... a larger gain.r or
     smaller gain.q_*`: weights a deadbeat gain does not have.  The model file is named."""
     sw = _model_sweep(tmp_path, "unc", A=np.eye(2), B=np.zeros(2))
@@ -152,7 +172,7 @@ def test_an_identified_model_without_a_finite_gain_names_the_model_file(tmp_path
 
 
 def test_a_sweep_file_not_in_utf8_names_its_encoding_or_line(tmp_path, capsys):
-    """V56-V59: a sweep file saved as UTF-16 or Latin-1 said `cannot read the sweep file:
+    """V39, V40: a sweep file saved as UTF-16 or Latin-1 said `cannot read the sweep file:
     'utf-8' codec can't decode byte 0xff in position 0: invalid start byte` (a byte offset,
     nothing allowed)."""
     for name, data, want in [
@@ -168,10 +188,11 @@ def test_a_sweep_file_not_in_utf8_names_its_encoding_or_line(tmp_path, capsys):
 
 
 def test_coverage_is_refused_while_a_run_writes_the_directory(done, capsys):
-    """V34b: `coverage DIR` started after the first of 200 chunks of `run --batch 1` wrote the
-    table of the 12 chunks stored then; written after the run's own table, it stood as the
-    finished run's (`wbox` printed the W of 20 runs of 200, `report` showed 10 / 10 runs).  It
-    is refused while the run holds the directory's lock; a lock left by a dead run is none."""
+    """V30: `coverage DIR` started after the first of 200 chunks of `run --batch 1` wrote the
+    table of the 12 chunks stored then (the run's own, written at its end, replaced it that
+    time); written after the run's, it stands as the finished run's (shown by computing it on
+    20 of 200 chunks and putting the others back: `wbox` printed the W of 20 runs, `report`
+    showed 10 / 10 runs).  It is refused while a run holds the directory's lock."""
     table = (done / store.COVERAGE).read_bytes()
     with store.results_lock(done):
         line = _one_line_error(*cli(capsys, "coverage", done)[::2])
@@ -183,7 +204,7 @@ def test_coverage_is_refused_while_a_run_writes_the_directory(done, capsys):
 
 def test_wbox_of_a_table_without_rows_names_the_splits_not_the_options(tmp_path, capsys,
                                                                         fake_loop):
-    """V37: `[analysis] splits = ["speed"]` in a sweep that sweeps no speed: coverage.csv has
+    """V32: `[analysis] splits = ["speed"]` in a sweep that sweeps no speed: coverage.csv has
     no rows, and `wbox DIR` (no option given) said `--group/--method: method 'box': no
     coverage.csv rows of it`."""
     sw = tmp_path / "s.toml"
