@@ -190,7 +190,10 @@ def test_one_run_per_path_says_there_is_no_held_out_statistic(tmp_path):
                      progress=False)
     assert _csv(out)[1] == []
     _, md = report.write_report(out)
-    assert "no held-out statistic" in md.read_text()
+    text = md.read_text()
+    assert "no held-out statistic" in text
+    splits = ", ".join(store.analysis_settings(out).splits)
+    assert f"held-out field of this run's splits ({splits})" in text
 
 
 def test_path_and_speed_splits_and_a_value_split(tmp_path):

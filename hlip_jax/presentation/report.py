@@ -368,8 +368,10 @@ def across_run_section(doc, out: Path) -> list[tuple]:
         print(f"hlip-sweep: note: {why}; rewritten from this run's chunks", file=sys.stderr)
         rows = store.read_coverage(out)
     if not any(r["level"] == "run" for r in rows):
-        doc.p("No group has runs that differ in a held-out field (seed, path or speed): no "
-              "held-out statistic. Sweep seeds (the [analysis] table's splits) to get one.")
+        held = ", ".join(store.analysis_settings(out).splits)
+        doc.p(f"No group has runs that differ in a held-out field of this run's splits ({held}): "
+              "no held-out statistic. Sweep that field (or name another in the [analysis] "
+              "table's splits) to get one.")
         return []
     doc.table(ACROSS_HEAD, across_run_rows(rows))
     said = dict.fromkeys((r["split"], r["assumption"]) for r in rows if r["level"] == "run")
