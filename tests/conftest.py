@@ -16,15 +16,26 @@ jax.config.update("jax_enable_x64", True)
 jax.devices()
 
 
-@pytest.fixture
-def float64():
-    """Run the test with JAX's float64 enabled (restored afterwards)."""
+def _x64(enabled: bool):
+    """JAX's float64 switch set to ``enabled`` for the test, restored afterwards."""
     old = jax.config.jax_enable_x64
-    jax.config.update("jax_enable_x64", True)
+    jax.config.update("jax_enable_x64", enabled)
     try:
         yield
     finally:
         jax.config.update("jax_enable_x64", old)
+
+
+@pytest.fixture
+def float64():
+    """Run the test with JAX's float64 enabled (restored afterwards)."""
+    yield from _x64(True)
+
+
+@pytest.fixture
+def float32():
+    """Run the test without x64, JAX's default (restored afterwards)."""
+    yield from _x64(False)
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -10,7 +10,6 @@ from __future__ import annotations
 import errno
 import threading
 
-import jax
 import numpy as np
 import pytest
 
@@ -19,17 +18,6 @@ from hlip_jax.presentation import set_figures
 from hlip_jax.runtime import array_cache
 
 A3 = np.array([[0.6, 0.2, 0.1], [-0.1, 0.5, 0.2], [0.05, 0.1, 0.3]])   # spectral radius ~0.6
-
-
-@pytest.fixture
-def float32():
-    """JAX without x64 for the test (its default), restored afterwards."""
-    old = jax.config.jax_enable_x64
-    jax.config.update("jax_enable_x64", False)
-    try:
-        yield
-    finally:
-        jax.config.update("jax_enable_x64", old)
 
 
 def _support_points(E, D) -> np.ndarray:
