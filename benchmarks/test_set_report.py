@@ -25,9 +25,11 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))   # its sibling validation_report, run or loaded
 
 from hlip_jax.analysis.stats import rate_text  # noqa: E402
 from hlip_jax.sweepio import store  # noqa: E402
+from validation_report import line_speed  # noqa: E402
 
 PUSH200 = re.compile(r"push-200-(?P<side>fwd|back|left|right)-[\d.]+$")
 PUSH100 = re.compile(r"push-100-dir(?P<deg>[+-]\d+)-[\d.]+$")
@@ -102,20 +104,6 @@ def noise_table(rows) -> list[str]:
         d = np.nanmedian([num(r, "rms_track_err") for r in rs if ok(r)] or [np.nan])
         lines.append(f"| {name} | {rate(rs)} | {d:.3f} |")
     return lines
-
-
-def line_speed(log, s) -> tuple[float, float]:
-    """(mean forward COM speed over the constant-speed part [m/s], the command [m/s])."""
-    v = np.asarray(log["valid"][s], bool)
-    t = np.asarray(log["t_plant"][s])[v]
-    c = np.asarray(log["x_robot"][s])[v][:, :, 0]
-    ref_v = np.linalg.norm(np.asarray(log["ref_vel"][s])[v], axis=1)
-    cmd = float(np.max(ref_v)) if ref_v.size else math.nan
-    hold = np.flatnonzero(ref_v >= 0.999 * cmd) if ref_v.size else []
-    if len(hold) < 2:
-        return math.nan, cmd
-    a, b = hold[0], hold[-1]
-    return float(np.linalg.norm(c[b] - c[a]) / (t[b] - t[a])), cmd
 
 
 def speed_table(rows, out) -> list[str]:

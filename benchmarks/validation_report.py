@@ -97,23 +97,31 @@ def envelope_table(env) -> list[str]:
     return out
 
 
+def line_speed(log, s) -> tuple[float, float]:
+    """Scenario ``s`` of a log: (mean forward COM speed over the constant-speed part [m/s],
+    the command [m/s]); the speed is NaN where no part holds the command."""
+    v = np.asarray(log["valid"][s], bool)
+    t = np.asarray(log["t_plant"][s])[v]
+    c = np.asarray(log["x_robot"][s])[v][:, :, 0]
+    ref_v = np.linalg.norm(np.asarray(log["ref_vel"][s])[v], axis=1)
+    cmd = float(np.max(ref_v)) if ref_v.size else 0.0
+    hold = np.flatnonzero(ref_v >= 0.999 * cmd)
+    if hold.size < 2:
+        return math.nan, cmd
+    a, b = hold[0], hold[-1]
+    return float(np.linalg.norm(c[b] - c[a]) / (t[b] - t[a])), cmd
+
+
 def speed_table(speeds_dir) -> list[str]:
     rows = store.read_summary(speeds_dir)
     log = store.load_log(speeds_dir)
     out = ["| scenario | walked | mean speed over the constant-speed part [m/s] | command [m/s] | within ±10 % |",
            "|---|---|---|---|---|"]
     for s, r in enumerate(rows):
-        v = log["valid"][s]
-        t = log["t_plant"][s][v]
-        c = log["x_robot"][s][v][:, :, 0]
-        ref_v = np.linalg.norm(log["ref_vel"][s][v], axis=1)
-        cmd = float(np.max(ref_v)) if ref_v.size else 0.0
-        hold = np.flatnonzero(ref_v >= 0.999 * cmd)
-        if not r["path"].startswith("line") or hold.size < 2:
+        speed, cmd = line_speed(log, s)
+        if not r["path"].startswith("line") or math.isnan(speed):
             out.append(f"| {r['path']} | {'yes' if _ok(r) else 'no'} | – | – | – |")
             continue
-        a, b = hold[0], hold[-1]
-        speed = float(np.linalg.norm(c[b] - c[a]) / (t[b] - t[a]))
         ok = abs(speed - cmd) <= 0.1 * cmd
         out.append(f"| {r['path']} | {'yes' if _ok(r) else 'no'} | {speed:.3f} | {cmd:g} | "
                    f"{'yes' if ok and _ok(r) else 'no'} |")
