@@ -14,8 +14,8 @@ in this process: results already simulated are never lost to the pool.
 
 The pool outlives one map: a run writes coverage.csv and then draws its report, and spawning
 the workers (each imports JAX, matplotlib and the package) costs seconds each time, so the
-second map reuses the first one's processes when it asks for as many workers in the same
-precision (:func:`close` ends them, and runs at the interpreter's exit).
+second map reuses the first one's processes when it asks for as many workers (each call sets
+its worker's precision; :func:`close` ends them, and runs at the interpreter's exit).
 """
 
 from __future__ import annotations
@@ -75,31 +75,31 @@ def starmap(fn: Callable, calls: Sequence[tuple], workers: int) -> list:
     n = min(workers, len(calls))
     try:
         with cpu_children():                 # workers are spawned on demand, inside the map
-            ex = _pool(n, x64)
+            ex = _pool(n)
             return list(ex.map(_in_precision, [x64] * len(calls), [fn] * len(calls), calls))
     except (OSError, concurrent.futures.process.BrokenProcessPool):
         close()
         return [fn(*args) for args in calls]
 
 
-#: the pool kept between maps: {"key": (workers, x64), "ex": ProcessPoolExecutor}
+#: the pool kept between maps: {"workers": its size, "ex": ProcessPoolExecutor}
 _POOL: dict = {}
 
 
-def _pool(n: int, x64: bool) -> concurrent.futures.ProcessPoolExecutor:
-    """The kept pool of ``n`` spawned workers for precision ``x64`` (a new one, the old one
-    closed, when either differs)."""
-    if _POOL.get("key") != (n, x64):
+def _pool(n: int) -> concurrent.futures.ProcessPoolExecutor:
+    """The kept pool of ``n`` spawned workers (a new one, the old one closed, for another
+    ``n``)."""
+    if _POOL.get("workers") != n:
         close()
         ctx = multiprocessing.get_context("spawn")
-        _POOL.update(key=(n, x64), ex=concurrent.futures.ProcessPoolExecutor(n, mp_context=ctx))
+        _POOL.update(workers=n, ex=concurrent.futures.ProcessPoolExecutor(n, mp_context=ctx))
     return _POOL["ex"]
 
 
 def close() -> None:
     """End the kept pool's workers (a no-op without one)."""
     ex = _POOL.pop("ex", None)
-    _POOL.pop("key", None)
+    _POOL.pop("workers", None)
     if ex is not None:
         ex.shutdown(wait=True, cancel_futures=True)
 
